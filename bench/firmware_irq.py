@@ -1,0 +1,103 @@
+"""MicroPython benchmark of the firmware's IRQ path and main loop (run by bench/run.py).
+
+The handler is driven directly with the event sequence of one transaction (no fake-bus overhead);
+a do-nothing handler driven the same way is subtracted. Prints one `name value` line per figure.
+"""
+
+import time
+
+from joint import config, protocol as P
+from joint.core import JointController
+from joint.i2c_target import I2CTargetAdapter
+from joint.log import Logger
+from joint.sim.clock import VirtualClock
+from harness import RecordingMotor
+import simspeed
+
+A_MW, A_MR, RQ, WQ, E_R, E_W = 2, 1, 4, 8, 16, 32
+
+
+class Stub:
+    """The minimum of machine.I2CTarget a handler needs, replaying preset events."""
+
+    def __init__(self):
+        self.event = 0
+        self.rx = bytearray(8)
+        self.rx_len = 0
+
+    def irq(self, handler=None, trigger=None, hard=False):
+        return self
+
+    def flags(self):
+        return self.event
+
+    def readinto(self, buf):
+        n = self.rx_len
+        for i in range(n):
+            buf[i] = self.rx[i]
+        return n
+
+    def write(self, buf):
+        return len(buf)
+
+
+def sequence(stub, handler, frame, read_len, events):
+    stub.rx_len = len(frame)
+    for i in range(len(frame)):
+        stub.rx[i] = frame[i]
+    for event in events:
+        stub.event = event
+        handler(stub)
+
+
+def bench_transaction(label, frame, read_len, n=2000):
+    events = (A_MW, WQ, E_W, A_MR, RQ, RQ, E_R)
+    clock = VirtualClock()
+    core = JointController(RecordingMotor(), clock, config.default("J1"), Logger("J1", write=lambda s: None))
+    for _ in range(3000):
+        clock.advance(1000)
+        core.service()
+    stub = Stub()
+    adapter = I2CTargetAdapter(core, stub)
+    handler = adapter._irq
+
+    def nothing(target):
+        target.irq().flags()
+
+    for fn in (handler, nothing):
+        sequence(stub, fn, frame, read_len, events)
+    t0 = time.ticks_us()
+    for _ in range(n):
+        sequence(stub, handler, frame, read_len, events)
+        core._q_out = core._q_in  # keep the queue from filling; the main loop is measured separately
+    t1 = time.ticks_us()
+    for _ in range(n):
+        sequence(stub, nothing, frame, read_len, events)
+    t2 = time.ticks_us()
+    per = (time.ticks_diff(t1, t0) - time.ticks_diff(t2, t1)) / n
+    wire = P.wire_bits(len(frame), read_len) / 400000 * 1e6
+    print("irq_us_%s %.2f" % (label, per))
+    print("irq_fraction_of_wire_%s %.4f" % (label, per / wire))
+
+
+def bench_main_loop(n=5000):
+    clock = VirtualClock()
+    core = JointController(RecordingMotor(), clock, config.default("J1"), Logger("J1", write=lambda s: None))
+    for _ in range(3000):
+        clock.advance(1000)
+        core.service()
+    t0 = time.ticks_us()
+    for _ in range(n):
+        clock.advance(1000)
+        core.service()
+    print("main_loop_us %.2f" % (time.ticks_diff(time.ticks_us(), t0) / n))
+
+
+def bench_sim_speed():
+    print("sim_virtual_s_per_wall_s %.1f" % simspeed.virtual_per_wall(time.ticks_us))
+
+
+bench_transaction("read_float", bytes([P.ANGLEMOVED]), 5)
+bench_transaction("command_float", bytes([P.SETRPM, 0, 0, 0x20, 0x41]), 1)
+bench_main_loop()
+bench_sim_speed()

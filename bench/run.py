@@ -1,0 +1,45 @@
+"""Benchmarks, measured side by side in one run. `make bench` runs this.
+
+Firmware (MicroPython unix port): IRQ-path time per transaction as a fraction of its wire time at
+400 kHz, main-loop iteration time, simulated-joint speed. The same simulated-joint figure is also
+measured under CPython, where the host's simulator runs it.
+"""
+
+from __future__ import annotations
+
+import os
+import pathlib
+import shutil
+import subprocess
+import sys
+import time
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+sys.path[:0] = [str(ROOT / "firmware"), str(ROOT / "firmware" / "tests"), str(ROOT / "bench")]
+
+
+def micropython_figures() -> dict[str, float]:
+    binary = shutil.which("micropython") or str(pathlib.Path(sys.executable).parent / "micropython")
+    env = dict(os.environ, MICROPYPATH=f"{ROOT / 'firmware'}:{ROOT / 'firmware' / 'tests'}:{ROOT / 'bench'}")
+    out = subprocess.run([binary, "-X", "heapsize=8M", str(ROOT / "bench" / "firmware_irq.py")],
+                         capture_output=True, text=True, env=env, check=True).stdout
+    return {name: float(value) for name, value in (line.split() for line in out.splitlines() if line.strip())}
+
+
+def main() -> None:
+    mp = micropython_figures()
+    print("firmware, MicroPython unix port on this machine")
+    for label, frame in (("read_float", "register read of a float (75 bit times)"),
+                         ("command_float", "command with a float payload (75 bit times)")):
+        print(f"  IRQ path, {frame}: {mp['irq_us_' + label]:.1f} us per transaction = "
+              f"{mp['irq_fraction_of_wire_' + label] * 100:.1f} % of its 187.5 us wire time at 400 kHz")
+    print(f"  main-loop iteration (recording motor, no physics): {mp['main_loop_us']:.1f} us")
+    print(f"  simulated joint turning at 60 rpm: {mp['sim_virtual_s_per_wall_s']:.1f} virtual s per wall s")
+    print("host simulator, CPython")
+    import simspeed
+    speed = simspeed.virtual_per_wall(lambda: time.perf_counter_ns() // 1000)
+    print(f"  simulated joint turning at 60 rpm: {speed:.1f} virtual s per wall s")
+
+
+if __name__ == "__main__":
+    main()

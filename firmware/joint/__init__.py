@@ -1,0 +1,1 @@
+"""Bioscara joint firmware (MicroPython). Copied onto each joint MCU as the package `joint`."""

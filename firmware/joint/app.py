@@ -1,0 +1,64 @@
+"""Boot the joint firmware on the MCU: configuration, motor backend, I2C target, main loop.
+
+`machine` is passed in (the real module on the board, a stand-in in tests), so nothing here touches
+hardware at import time. An invalid configuration or a motor backend that fails to start leaves
+the joint disabled, reporting why on the serial console, instead of crashing.
+"""
+
+from . import config
+from .clock import MonotonicClock
+from .core import JointController
+from .i2c_target import I2CTargetAdapter
+from .log import Logger
+
+
+def build_motor(cfg):
+    if cfg.motor.get("backend") == "pico":
+        from .pico.motor import PicoStepper
+        return PicoStepper.from_config(cfg.motor)
+    raise ValueError("motor backend %r cannot run on a board" % cfg.motor.get("backend"))
+
+
+def build(machine, config_path=config.CONFIG_FILE, clock=None, write=None):
+    """Load the configuration and create the controller; returns (core, cfg, log)."""
+    cfg = config.load(config_path)
+    log = Logger(cfg.joint or "joint", write=write)
+    motor = None
+    if cfg.valid:
+        try:
+            motor = build_motor(cfg)
+        except Exception as exc:
+            cfg.errors.append("motor backend failed to start: %r" % (exc,))
+    core = JointController(motor, clock or MonotonicClock(), cfg, log,
+                           critical=(machine.disable_irq, machine.enable_irq))
+    return core, cfg, log
+
+
+def join_bus(machine, core, cfg, log):
+    """Become an I2C target once booted, as the original registered its handlers last."""
+    if cfg.address is None:
+        log.error("no valid I2C address configured: not joining the bus")
+        return None
+    target = machine.I2CTarget(cfg.i2c.bus, cfg.address, scl=machine.Pin(cfg.i2c.scl),
+                               sda=machine.Pin(cfg.i2c.sda))
+    return I2CTargetAdapter(core, target, cfg.i2c.whole_reply_writes)
+
+
+def run(config_path=config.CONFIG_FILE):
+    import machine
+    import time
+
+    core, cfg, log = build(machine, config_path)
+    while not core.ready:
+        core.service()
+        time.sleep_ms(1)
+    join_bus(machine, core, cfg, log)
+    next_ms = time.ticks_ms()
+    while True:
+        core.service()
+        next_ms = time.ticks_add(next_ms, 1)
+        late = time.ticks_diff(time.ticks_ms(), next_ms)
+        if late > 10:
+            next_ms = time.ticks_ms()  # fell behind (e.g. a long flash write): resynchronise
+        while time.ticks_diff(next_ms, time.ticks_ms()) > 0:
+            machine.idle()

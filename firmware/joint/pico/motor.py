@@ -1,0 +1,456 @@
+"""PicoStepper: the MotorHAL on a Raspberry Pi Pico, a TMC2209 and an AS5600.
+
+The TMC5130 of the uStepper generated its own ramp; here joint.ramp.Ramp plays that part in the
+main loop and the PIO turns it into STEP/DIR pulses (stepgen.py). update() does what the
+library's 1.54 kHz timer interrupt did (ustepper-model.md section 3): sample the encoder, run the
+velocity estimator and, with the closed loop on, re-synchronise the driver position to the encoder
+whenever they disagree by the control threshold or more. Then it advances the ramp and queues the
+next burst of pulses.
+
+Differences from the uStepper that the stall and homing tuning must allow for:
+* the closed loop runs at the main-loop rate (`update_hz`, default 1 kHz) instead of 1541.85 Hz,
+  so a stalled motor's error baseline, v * T, is 1.54x larger at the same speed;
+* the AS5600 has 4096 counts/rev, 12.5 usteps per count, so the PID error has a 12.5-ustep
+  quantum plus about a count of noise; a control threshold below ~2.5 counts (31 usteps) makes
+  the loop chase that noise at standstill (the original firmware boots with 15);
+* the encoder's filter lag (config encoder_slow_filter) adds v * lag to the error at speed;
+* driver_rpm() reports the true ramp speed (the library reported 0.596x of it).
+
+Default wiring (DEFAULT_PINS; the joint bus target is I2C0 on GP4 SDA / GP5 SCL):
+
+    UART1 TX GP8 --1k--+-- TMC2209 PDN_UART      I2C1 SDA GP6 -- AS5600 SDA
+    UART1 RX GP9 ------+                          I2C1 SCL GP7 -- AS5600 SCL (pull-ups on the board)
+    GP10 -- STEP    GP11 -- DIR    GP12 -- EN (low = enabled)
+    TMC2209 MS1/MS2 set the UART node address (tmc_address); SPREAD tied low.
+"""
+
+from ..clock import MonotonicClock
+from ..hal import MotorHAL, USTEPS_PER_DEG, USTEPS_PER_REV
+from ..ramp import Ramp, POSITIONING, VELOCITY_NEG, VELOCITY_POS
+from ..velocity import VelocityEstimator
+from . import tmc2209 as tmc
+from .as5600 import AS5600, COUNTS_PER_REV, decode_status
+from .stepgen import SM_FREQ, MIN_PERIOD, StepGenerator, burst_program
+
+DEFAULT_PINS = {
+    "uart": 1, "uart_tx": 8, "uart_rx": 9,
+    "encoder_i2c": 1, "encoder_sda": 6, "encoder_scl": 7,
+    "step": 10, "dir": 11, "enable": 12,
+}
+
+DEFAULTS = dict(DEFAULT_PINS)
+DEFAULTS.update({
+    "uart_baud": 115200,
+    "tmc_address": 0,
+    "encoder_freq": 400000,
+    "encoder_slow_filter": 3,  # 2x: 0.286 ms settling, the least lag
+    "encoder_fast_threshold": 0,
+    "pio_sm": 0,
+    "microsteps": 256,  # one pulse per library ustep; coarser MRES coarsens the PID error
+    "max_step_rate": 1200000,  # pulses/s inside a burst; the average is 90 % of it
+    "rsense_ohm": 0.11,  # common on TMC2209 modules
+    "full_scale_ma": 1500,  # RMS at 100 %: the uStepper gave about 1.5..1.9 A
+    "update_hz": 1000,  # how often the core calls update()
+})
+
+JOINT_BUS = {"bus": 0, "sda": 4, "scl": 5}  # the joint's I2C target (config section "i2c")
+
+_RPM_TO_USTEPS = USTEPS_PER_REV / 60.0
+_FULL_STEP = 256.0
+# The TMC5130's largest AMAX/DMAX (0xFFFE at 10 MHz), which the library clamps to and which its
+# HARD stop uses: about 11 641 full steps/s^2.
+_MAX_ACCEL = 65534 * 45.4747
+_LIB_MAX_VEL = 0x7FFE00 * 0.596046  # VMAX limit, about 19 538 full steps/s
+_DEFAULT_VEL = 100 * _FULL_STEP  # the library constructor's profile
+_DEFAULT_ACCEL = 2000 * _FULL_STEP
+_BOOT_PERCENT = 40  # setup() sets run and hold current to 40 % whatever it is passed
+_POWERDOWN_S = 0.524  # the TMC5130's reset TPOWERDOWN (20) at 10 MHz, kept for the same feel
+_STEALTH_MAX = 2000.0  # usteps/s: the library's TPWMTHRS=5000 at 10 MHz
+_MAX_DT_TICKS = 4  # a late update advances the ramp by at most this many loop periods
+
+
+class PicoStepper(MotorHAL):
+    """The uStepper library's behaviour on Pico hardware objects passed in (fakes in tests)."""
+
+    def __init__(self, driver, encoder, steps, enable=None, clock=None, update_hz=1000,
+                 rsense_ohm=0.11, full_scale_ma=1500, encoder_slow_filter=3, encoder_fast_threshold=0):
+        self._drv = driver
+        self._enc = encoder
+        self._steps = steps
+        self._enable = enable
+        self._clock = clock or MonotonicClock()
+        self._microsteps = 256 // steps.upp
+        self._enc_conf = (encoder_slow_filter, encoder_fast_threshold)
+        self._vsense, self._cs_max = tmc.current_scale(rsense_ohm, full_scale_ma / 1000.0)
+        self._ramp = Ramp()
+        self._vel = VelocityEstimator(update_hz)
+        self._max_dt = _MAX_DT_TICKS / update_hz
+        self._vmax_limit = min(_LIB_MAX_VEL, steps.max_usteps_per_s())
+        self._vmax = min(_DEFAULT_VEL, self._vmax_limit)
+        self._amax = _DEFAULT_ACCEL
+        self._dmax = _DEFAULT_ACCEL
+        self._threshold = 10.0
+        self._closed_loop = False
+        self._error = 0
+        self._stopping = False
+        self._irun = self._ihold = tmc.percent_to_cs(_BOOT_PERCENT, self._cs_max)
+        self._pwmconf = 0
+        self._ready = False
+        self._last_us = 0
+        self.fault = None  # last UART error after begin(), for diagnostics
+        self.faults = 0
+
+    @classmethod
+    def from_config(cls, motor_cfg, clock=None):
+        """Build the real objects from a motor config dict (DEFAULTS fill the gaps)."""
+        problems = validate_motor_config(motor_cfg)
+        if problems:
+            raise ValueError("; ".join(problems))
+        import machine
+        import rp2
+
+        c = dict(DEFAULTS)
+        c.update(motor_cfg)
+        Pin = machine.Pin
+        char_ms = 1 + 10000 // c["uart_baud"]
+        uart = machine.UART(c["uart"], baudrate=c["uart_baud"], tx=Pin(c["uart_tx"]), rx=Pin(c["uart_rx"]),
+                            timeout=2 + 3 * char_ms, timeout_char=2 + 3 * char_ms)
+        i2c = machine.I2C(c["encoder_i2c"], sda=Pin(c["encoder_sda"]), scl=Pin(c["encoder_scl"]),
+                          freq=c["encoder_freq"])
+        enable = Pin(c["enable"], Pin.OUT, value=1)  # ENN high: bridges off until begin()
+        sm = rp2.StateMachine(c["pio_sm"], burst_program(), freq=SM_FREQ,
+                              sideset_base=Pin(c["step"]), out_base=Pin(c["dir"]))
+        sm.active(1)
+        return cls(tmc.TMC2209(uart, c["tmc_address"]), AS5600(i2c),
+                   StepGenerator(sm, c["microsteps"], c["max_step_rate"]), enable, clock,
+                   c["update_hz"], c["rsense_ohm"], c["full_scale_ma"],
+                   c["encoder_slow_filter"], c["encoder_fast_threshold"])
+
+    # ---- setup ----
+
+    def begin(self):
+        """setup(CLOSEDLOOP, 200): driver and encoder configured, encoder and driver zeroed,
+        40 %/40 % current, closed loop inactive. Raises OSError (TMCError) on a hardware fault."""
+        drv = self._drv
+        version = drv.read(tmc.IOIN) >> 24
+        if version != tmc.VERSION:
+            raise tmc.TMCError("TMC2209 at node %d reports version 0x%02x, expected 0x21"
+                               % (drv.node, version))
+        chop = tmc.chopconf(drv.read(tmc.CHOPCONF), self._microsteps, self._vsense)
+        self._pwmconf = tmc.pwmconf(drv.read(tmc.PWMCONF), tmc.FREEWHEEL_SHORT_LS)
+        before = drv.read(tmc.IFCNT)
+        writes = (
+            (tmc.GSTAT, 7),  # clear reset/error flags (write 1 to clear)
+            (tmc.GCONF, tmc.gconf(False)),
+            (tmc.CHOPCONF, chop),
+            (tmc.PWMCONF, self._pwmconf),
+            (tmc.TPOWERDOWN, tmc.tpowerdown(_POWERDOWN_S)),
+            (tmc.TPWMTHRS, tmc.tpwmthrs(_STEALTH_MAX)),
+            (tmc.IHOLD_IRUN, tmc.ihold_irun(self._ihold, self._irun)),
+        )
+        for reg, value in writes:
+            drv.write(reg, value)
+        counted = (drv.read(tmc.IFCNT) - before) & 0xFF
+        if counted != len(writes):
+            raise tmc.TMCError("TMC2209 accepted %d of %d configuration writes (IFCNT)"
+                               % (counted, len(writes)))
+        enc = self._enc
+        detected, weak, strong = decode_status(enc.status())
+        if not detected or weak or strong:
+            problem = "not detected" if not detected else "too weak" if weak else "too strong"
+            raise OSError("AS5600: magnet %s (check the magnet and its distance)" % problem)
+        enc.configure(self._enc_conf[0], self._enc_conf[1])
+        enc.start()
+        self._vel.reset()
+        self._steps.shift(-self._steps.position)
+        ramp = self._ramp
+        ramp.set_position(self._steps.commanded)
+        ramp.v = 0.0
+        ramp.mode = POSITIONING
+        ramp.xtarget = ramp.xactual()
+        ramp.vmax = 0.0  # the library leaves VMAX at 0 until the first motion call
+        ramp.amax = self._amax
+        ramp.dmax = self._dmax
+        self._closed_loop = False
+        self._error = 0
+        self._stopping = False
+        if self._enable is not None:
+            self._enable.value(0)
+        self._last_us = self._clock.ticks_us()
+        self._ready = True
+
+    # ---- the timer interrupt of the library, once per main-loop iteration ----
+
+    def update(self):
+        if not self._ready:
+            return
+        clock = self._clock
+        now = clock.ticks_us()
+        dt = clock.ticks_diff(now, self._last_us) * 1e-6
+        self._last_us = now
+        if dt > self._max_dt:
+            dt = self._max_dt
+        steps = self._steps
+        steps.poll()
+        enc = self._enc
+        if enc.sample():
+            self._vel.update(enc.count)
+            if self._closed_loop:
+                measured = enc.usteps()
+                error = steps.position - measured
+                self._error = error
+                if abs(error) >= self._threshold:
+                    self._relabel(-error)
+        ramp = self._ramp
+        ramp.step(dt)
+        if self._stopping and ramp.v == 0.0:
+            self._finish_stop()
+        steps.issue(ramp.x, dt)
+
+    def _relabel(self, delta):
+        """Shift the driver frame by `delta` usteps without moving the motor (an XACTUAL write):
+        in positioning mode the ramp then makes up the difference toward the same target."""
+        self._steps.shift(delta)
+        self._ramp.set_position(self._ramp.x + delta)
+
+    # ---- closed loop ----
+
+    def enable_closed_loop(self):
+        self._closed_loop = True
+
+    def disable_closed_loop(self):
+        self._closed_loop = False
+
+    def set_control_threshold(self, usteps):
+        self._threshold = usteps
+
+    # ---- motion ----
+
+    # Like the library these apply to the running ramp at once, except during a stop, which
+    # the library finishes (blocking) before anything else runs; it restores them at the end.
+
+    def set_max_velocity(self, full_steps_per_s):
+        self._vmax = min(abs(full_steps_per_s) * _FULL_STEP, self._vmax_limit)
+        if not self._stopping:
+            self._ramp.vmax = self._vmax
+
+    def set_max_acceleration(self, full_steps_per_s2):
+        self._amax = min(abs(full_steps_per_s2) * _FULL_STEP, _MAX_ACCEL)
+        if not self._stopping:
+            self._ramp.amax = self._amax
+
+    def set_max_deceleration(self, full_steps_per_s2):
+        self._dmax = min(abs(full_steps_per_s2) * _FULL_STEP, _MAX_ACCEL)
+        if not self._stopping:
+            self._ramp.dmax = self._dmax
+
+    def set_rpm(self, rpm):
+        """Velocity mode: VMAX = |rpm| in usteps/s, direction from the sign (0 ramps down)."""
+        ramp = self._ramp
+        if self._stopping:  # a new command ends a stop (the library's stop() blocks instead)
+            self._stopping = False
+            ramp.amax = self._amax
+            ramp.dmax = self._dmax
+        ramp.vmax = min(abs(rpm) * _RPM_TO_USTEPS, self._vmax_limit)
+        ramp.mode = VELOCITY_POS if rpm > 0 else VELOCITY_NEG
+
+    def move_steps(self, usteps):
+        """Positioning to the ramp position + usteps with the stored velocity and accelerations."""
+        ramp = self._ramp
+        self._stopping = False
+        ramp.vmax = self._vmax
+        ramp.amax = self._amax
+        ramp.dmax = self._dmax
+        ramp.mode = POSITIONING
+        ramp.xtarget = ramp.xactual() + int(usteps)
+
+    def move_angle(self, degrees):
+        steps = degrees * USTEPS_PER_DEG
+        self.move_steps(int(steps + 0.5) if steps >= 0 else int(steps - 0.5))
+
+    def move_to_angle(self, degrees):
+        diff = degrees - self.angle_moved()
+        steps = int(abs(diff) * USTEPS_PER_DEG + 0.5)
+        self.move_steps(steps if diff >= 0 else -steps)
+
+    def stop(self, hard=True):
+        """setRPM(0) at the current AMAX (soft) or the driver's maximum (hard); when the ramp
+        stands still, update() restores AMAX/DMAX and holds the position in positioning mode."""
+        ramp = self._ramp
+        self._stopping = True
+        if hard:
+            ramp.amax = _MAX_ACCEL
+            ramp.dmax = _MAX_ACCEL
+        ramp.vmax = 0.0
+        ramp.mode = VELOCITY_NEG
+        if ramp.v == 0.0:
+            self._finish_stop()
+
+    def _finish_stop(self):
+        """setPosition(XACTUAL): hold where the ramp stopped. VMAX stays 0 as in the library, so
+        closed-loop corrections do not move the motor until the next motion command."""
+        ramp = self._ramp
+        self._stopping = False
+        ramp.amax = self._amax
+        ramp.dmax = self._dmax
+        ramp.mode = POSITIONING
+        ramp.xtarget = ramp.xactual()
+        ramp.set_position(ramp.xtarget)
+
+    # ---- driver settings ----
+
+    def _write(self, reg, value):
+        try:
+            self._drv.write(reg, value)
+        except OSError as exc:
+            self.fault = str(exc)
+            self.faults += 1
+
+    def set_current(self, percent):
+        self._irun = tmc.percent_to_cs(percent, self._cs_max)
+        self._write(tmc.IHOLD_IRUN, tmc.ihold_irun(self._ihold, self._irun))
+
+    def set_hold_current(self, percent):
+        self._ihold = tmc.percent_to_cs(percent, self._cs_max)
+        self._write(tmc.IHOLD_IRUN, tmc.ihold_irun(self._ihold, self._irun))
+
+    def set_brake_mode(self, mode):
+        self._ihold, freewheel = tmc.brake_settings(mode, self._cs_max)
+        self._pwmconf = tmc.pwmconf(self._pwmconf, freewheel)
+        self._write(tmc.PWMCONF, self._pwmconf)
+        self._write(tmc.IHOLD_IRUN, tmc.ihold_irun(self._ihold, self._irun))
+
+    def set_inverted(self, inverted):
+        self._write(tmc.GCONF, tmc.gconf(inverted))
+
+    def set_home(self):
+        """encoder.setHome() and driver.setHome(): both read 0 here; a positioning move keeps
+        its remaining distance, otherwise the target becomes 0 too."""
+        self._enc.set_home()
+        self._vel.reset()
+        delta = -self._steps.position
+        self._relabel(delta)
+        ramp = self._ramp
+        if ramp.mode == POSITIONING:
+            ramp.xtarget += delta
+        else:
+            ramp.xtarget = 0
+
+    # ---- getters ----
+
+    def angle_moved(self):
+        return self._enc.degrees()
+
+    def encoder_rpm(self):
+        return self._vel.value * 60.0 / COUNTS_PER_REV
+
+    def driver_rpm(self):
+        return self._ramp.v / _RPM_TO_USTEPS
+
+    def pid_error(self):
+        return float(self._error)
+
+    def position_reached(self):
+        return not self._stopping and self._ramp.position_reached() and self._steps.idle()
+
+    def driver_position(self):
+        """Usteps of pulses that have reached the driver (XACTUAL of the uStepper)."""
+        return self._steps.position
+
+    def diagnostics(self):
+        """Driver and encoder health (reads both buses; for the debug console, not the loop)."""
+        detected, weak, strong = decode_status(self._enc.status())
+        report = {"magnet_detected": detected, "magnet_too_weak": weak, "magnet_too_strong": strong,
+                  "encoder_errors": self._enc.errors, "uart_faults": self.faults, "uart_fault": self.fault}
+        report.update(tmc.decode_drv_status(self._drv.read(tmc.DRV_STATUS)))
+        return report
+
+
+# ---- configuration ----
+
+_INT = 0
+_NUM = 1
+_SCHEMA = (
+    ("uart", _INT, 0, 1), ("uart_tx", _INT, 0, 47), ("uart_rx", _INT, 0, 47),
+    ("uart_baud", _INT, 9600, 500000), ("tmc_address", _INT, 0, 3),
+    ("encoder_i2c", _INT, 0, 1), ("encoder_sda", _INT, 0, 47), ("encoder_scl", _INT, 0, 47),
+    ("encoder_freq", _INT, 10000, 1000000), ("encoder_slow_filter", _INT, 0, 3),
+    ("encoder_fast_threshold", _INT, 0, 7),
+    ("step", _INT, 0, 47), ("dir", _INT, 0, 47), ("enable", _INT, 0, 47), ("pio_sm", _INT, 0, 11),
+    ("microsteps", _INT, 1, 256), ("max_step_rate", _NUM, 1000, SM_FREQ // MIN_PERIOD),
+    ("rsense_ohm", _NUM, 0.05, 1.0), ("full_scale_ma", _NUM, 50, 2000), ("update_hz", _NUM, 100, 5000),
+)
+_PINS = ("uart_tx", "uart_rx", "encoder_sda", "encoder_scl", "step", "dir", "enable")
+
+
+def _uart_of(pin):
+    """UART instance on a GPIO: the RP2040 table (TX on pin % 4 == 0, RX on 1, in blocks
+    0,1,1,0,0,1,1,0 of four pins), assumed to continue on the RP2350B's GPIO 30..47."""
+    return ((pin // 4 + 1) // 2) % 2
+
+
+def _pins_for(ok):
+    return ", ".join("GP%d" % p for p in range(30) if ok(p))
+
+
+def validate_motor_config(cfg, joint_bus=None):
+    """Readable problems with a "pico" motor config dict (empty list: valid).
+
+    `joint_bus` is the joint's I2C target {"bus", "sda", "scl"} (defaults to JOINT_BUS): the
+    encoder must use the other I2C block and none of its pins.
+    """
+    if type(cfg) is not dict:
+        return ["the motor config must be an object"]
+    errors = []
+    known = [spec[0] for spec in _SCHEMA]
+    for key in cfg:
+        if key != "backend" and key not in known:
+            errors.append("unknown key %s (known: %s)" % (key, ", ".join(known)))
+    c = dict(DEFAULTS)
+    bad = []
+    for key, kind, lo, hi in _SCHEMA:
+        if key not in cfg:
+            continue
+        value = cfg[key]
+        kinds = (int,) if kind == _INT else (int, float)
+        if type(value) is bool or type(value) not in kinds:
+            what = "an integer" if kind == _INT else "a number"
+            errors.append("%s must be %s, got %r" % (key, what, value))
+            bad.append(key)
+        elif not lo <= value <= hi:
+            errors.append("%s = %r is out of range %s..%s" % (key, value, lo, hi))
+            bad.append(key)
+        else:
+            c[key] = value
+    if "microsteps" not in bad and 256 % c["microsteps"]:
+        errors.append("microsteps = %r must be a power of two in 1..256" % c["microsteps"])
+    uart = c["uart"]
+    if c["uart_tx"] % 4 != 0 or _uart_of(c["uart_tx"]) != uart:
+        errors.append("uart_tx = %d is not a TX pin of UART%d (use %s)"
+                      % (c["uart_tx"], uart, _pins_for(lambda p: p % 4 == 0 and _uart_of(p) == uart)))
+    if c["uart_rx"] % 4 != 1 or _uart_of(c["uart_rx"]) != uart:
+        errors.append("uart_rx = %d is not an RX pin of UART%d (use %s)"
+                      % (c["uart_rx"], uart, _pins_for(lambda p: p % 4 == 1 and _uart_of(p) == uart)))
+    bus = c["encoder_i2c"]
+    for key, parity, role in (("encoder_sda", 0, "SDA"), ("encoder_scl", 1, "SCL")):
+        pin = c[key]
+        if pin % 2 != parity or (pin // 2) % 2 != bus:
+            errors.append("%s = %d is not an %s pin of I2C%d (use %s)" % (
+                key, pin, role, bus, _pins_for(lambda p: p % 2 == parity and (p // 2) % 2 == bus)))
+    joint = JOINT_BUS if joint_bus is None else joint_bus
+    if bus == joint["bus"]:
+        errors.append("encoder_i2c = %d is the joint bus (I2C%d is the I2C target); use the other one"
+                      % (bus, joint["bus"]))
+    owners = {joint["sda"]: "the joint bus SDA", joint["scl"]: "the joint bus SCL"}
+    for key in _PINS:
+        pin = c[key]
+        if pin in owners:
+            errors.append("%s = %d is already used by %s" % (key, pin, owners[pin]))
+        else:
+            owners[pin] = key
+    if "rsense_ohm" not in bad and "full_scale_ma" not in bad:
+        try:
+            tmc.current_scale(c["rsense_ohm"], c["full_scale_ma"] / 1000.0)
+        except ValueError as exc:
+            errors.append("full_scale_ma = %r cannot be set: %s" % (c["full_scale_ma"], exc))
+    return errors

@@ -1,0 +1,180 @@
+"""Step/dir pulses from an RP2040/RP2350 PIO state machine, fed one burst per main-loop tick.
+
+Scheme: the ramp generator (joint.ramp.Ramp) runs in the main loop. Each update() turns the
+ramp's advance since the last tick into one burst word "N pulses, direction d, period P" and puts
+it into the state machine's TX FIFO. The PIO program sets DIR, emits the N pulses at P cycles
+each and pushes the word back into the RX FIFO as an acknowledgement. The driver position is the
+sum of acknowledged bursts: it counts only pulses that have left the pin. The position in flight
+(queued but not acknowledged) is exact too, so a closed-loop relabel can shift both.
+
+Bursts are sized to fill BURST_FILL (90 %) of the tick that just elapsed, so with a steady loop
+each one ends just before the next arrives and the pulse train is even within a tick. If the loop
+stalls, the FIFO runs dry and the motor pauses; the next burst then carries the missed distance at
+a higher rate (bounded by `max_rate`). The average speed over a tick is exact; the pulse spacing
+inside it is quantised to one PIO cycle.
+
+Burst word (30 bits, a small int on 32-bit ports), shifted out LSB first:
+    bit 0        DIR level (1: the driver position increases)
+    bits 1..15   pulses - 1                       (1..32768 pulses)
+    bits 16..29  low-phase delay Y                (period P = Y + PERIOD_OVERHEAD cycles)
+
+Timing at SM_FREQ = 12.5 MHz (an integer divider of 125 MHz on RP2040 and 150 MHz on RP2350):
+STEP high 3 cycles (240 ns), low >= 3 cycles, so the shortest period is 6 cycles (480 ns,
+2.08 MHz) and the longest 16388 cycles (1.31 ms). The TMC2209 needs about 100 ns high and low
+and 20 ns DIR set-up; DIR changes 160 ns before the first rising edge of a burst.
+
+Limits: the pulse rate inside a burst is at most 2.08 MHz (the PIO) and `max_rate` (config
+max_step_rate); the average speed is BURST_FILL of that. With MRES = 256 one pulse is one library
+ustep, so 1.2 MHz gives 1.08 M usteps/s = 1266 rpm (the joints' fastest setting is ~1146 rpm).
+Speed changes take effect at the next tick: one loop period of latency.
+"""
+
+try:
+    from micropython import const
+except ImportError:
+    def const(x):
+        return x
+
+SM_FREQ = const(12500000)
+HIGH_CYCLES = const(3)  # STEP high time: the pulse instruction plus its 2-cycle delay
+PERIOD_OVERHEAD = const(5)  # cycles per pulse beyond Y: high (3), last low-loop pass, pulse-loop jump
+MIN_DELAY = const(1)  # Y >= 1 keeps STEP low >= 3 cycles
+MAX_DELAY = const(0x3FFF)
+MAX_PULSES = const(0x8000)
+MIN_PERIOD = MIN_DELAY + PERIOD_OVERHEAD
+MAX_PERIOD = MAX_DELAY + PERIOD_OVERHEAD
+BURST_FILL = 0.9
+MAX_IN_FLIGHT = const(4)  # bursts queued or unacknowledged; 4 keeps put() and the PIO push non-blocking
+
+
+def usteps_per_pulse(microsteps):
+    """Library usteps (1/256 full step) moved by one STEP pulse at `microsteps` per full step."""
+    if microsteps < 1 or microsteps > 256 or 256 % microsteps:
+        raise ValueError("microsteps must be a power of two in 1..256, got %r" % (microsteps,))
+    return 256 // microsteps
+
+
+def period_cycles(usteps_per_s, upp, sm_freq=SM_FREQ):
+    """PIO cycles per pulse at a speed of |usteps_per_s|, `upp` usteps per pulse, clamped to
+    MIN_PERIOD..MAX_PERIOD (slower speeds simply finish their burst early)."""
+    rate = abs(usteps_per_s) / upp
+    if rate * MAX_PERIOD <= sm_freq:
+        return MAX_PERIOD
+    p = int(sm_freq / rate)
+    return MIN_PERIOD if p < MIN_PERIOD else p
+
+
+def burst_word(pulses, period):
+    """Word for |pulses| (1..MAX_PULSES) pulses, the sign giving the direction, at `period` cycles."""
+    n = pulses if pulses > 0 else -pulses
+    delay = period - PERIOD_OVERHEAD
+    delay = MIN_DELAY if delay < MIN_DELAY else MAX_DELAY if delay > MAX_DELAY else delay
+    return (delay << 16) | ((n - 1) << 1) | (1 if pulses > 0 else 0)
+
+
+def burst_pulses(word):
+    """Signed pulse count of a burst word (the PIO echoes words back as acknowledgements)."""
+    n = ((word >> 1) & 0x7FFF) + 1
+    return n if word & 1 else -n
+
+
+def burst_cycles(word):
+    """PIO cycles the burst takes: 4 to set up, N periods, 1 to acknowledge."""
+    n = ((word >> 1) & 0x7FFF) + 1
+    return 5 + n * (((word >> 16) & MAX_DELAY) + PERIOD_OVERHEAD)
+
+
+def plan_burst(owed_usteps, upp, window_s, max_pulses, sm_freq=SM_FREQ):
+    """(pulses, word): whole pulses of `upp` usteps toward `owed_usteps` (truncated toward zero,
+    at most max_pulses), spread over `window_s` seconds. (0, 0) when there is nothing to send."""
+    pulses = int(owed_usteps / upp)
+    if pulses > max_pulses:
+        pulses = max_pulses
+    elif pulses < -max_pulses:
+        pulses = -max_pulses
+    if pulses == 0:
+        return 0, 0
+    return pulses, burst_word(pulses, period_cycles(pulses * upp / window_s, upp, sm_freq))
+
+
+def burst_program():
+    """The PIO program (hardware only: imports rp2). Side-set drives STEP, OUT drives DIR."""
+    import rp2
+
+    high = HIGH_CYCLES - 1
+
+    @rp2.asm_pio(out_init=rp2.PIO.OUT_LOW, sideset_init=rp2.PIO.OUT_LOW,
+                 out_shiftdir=rp2.PIO.SHIFT_RIGHT)
+    def burst():
+        # asm_pio supplies these names. Only two instructions use .side(), which makes side-set
+        # optional: the others leave STEP as it is, low outside the pulse.
+        pull(block)
+        mov(isr, osr)  # keep the word: it is the acknowledgement
+        out(pins, 1)  # DIR
+        out(x, 15)  # pulses - 1; the delay Y stays in the OSR
+        label("pulse")
+        mov(y, osr).side(1)[high]  # STEP high for HIGH_CYCLES
+        label("low")
+        jmp(y_dec, "low").side(0)
+        jmp(x_dec, "pulse")
+        push(block)
+
+    return burst
+
+
+class StepGenerator:
+    """Feeds burst words to a state-machine-like object (put, get, rx_fifo) and tracks positions.
+
+    position:  usteps of acknowledged bursts (the pulses that reached the driver);
+    commanded: usteps handed to the PIO, position plus the bursts in flight.
+    """
+
+    def __init__(self, sm, microsteps=256, max_rate=1200000, sm_freq=SM_FREQ):
+        self._sm = sm
+        self.upp = usteps_per_pulse(microsteps)
+        self._sm_freq = sm_freq
+        self._max_rate = max_rate
+        self.position = 0
+        self.commanded = 0
+        self.in_flight = 0
+
+    def max_usteps_per_s(self):
+        """Highest average speed: BURST_FILL of the time at the maximum pulse rate."""
+        rate = self._sm_freq / MIN_PERIOD
+        if self._max_rate < rate:
+            rate = self._max_rate
+        return BURST_FILL * rate * self.upp
+
+    def poll(self):
+        """Account for bursts the PIO has finished."""
+        sm = self._sm
+        while sm.rx_fifo():
+            self.position += burst_pulses(sm.get()) * self.upp
+            self.in_flight -= 1
+
+    def issue(self, target, dt):
+        """Queue one burst toward `target` (usteps, the ramp position) spread over BURST_FILL of
+        `dt` seconds; returns the pulses queued (0 when there is nothing whole to send or the
+        FIFO is busy)."""
+        if self.in_flight >= MAX_IN_FLIGHT:
+            return 0
+        window = BURST_FILL * dt
+        max_pulses = int(window * self._sm_freq) // MIN_PERIOD
+        if max_pulses > self._max_rate * window:
+            max_pulses = int(self._max_rate * window)
+        if max_pulses > MAX_PULSES:
+            max_pulses = MAX_PULSES
+        pulses, word = plan_burst(target - self.commanded, self.upp, window, max_pulses, self._sm_freq)
+        if pulses:
+            self._sm.put(word)
+            self.commanded += pulses * self.upp
+            self.in_flight += 1
+        return pulses
+
+    def shift(self, delta):
+        """Relabel both positions by `delta` usteps (closed-loop re-sync, set home)."""
+        self.position += delta
+        self.commanded += delta
+
+    def idle(self):
+        return self.in_flight == 0

@@ -1,0 +1,1 @@
+"""Simulation backends for the joint firmware: virtual clock, fake I2C target, simulated stepper."""

@@ -1,0 +1,5 @@
+"""Board entry point: MicroPython runs this file at boot."""
+
+from joint import app
+
+app.run()

@@ -1,0 +1,80 @@
+"""Lowpass and MovMax filters (filters.h) and the stall detector built on them (stall.h)."""
+
+from joint import config
+from joint.filters import Lowpass, MovMax
+from joint.stall import StallDetector
+
+
+def test_lowpass_step_response_is_first_order():
+    lp = Lowpass(1.0, 0.01, 0.1)
+    values = [lp.update(100.0) for _ in range(10)]
+    assert abs(values[0] - 10.0) < 1e-9 and abs(values[1] - 19.0) < 1e-9
+    assert abs(values[-1] - 100.0 * (1 - 0.9 ** 10)) < 1e-9
+    lp.reset()
+    assert lp.value == 0.0
+
+
+def test_lowpass_gain_scales_the_steady_state():
+    lp = Lowpass(2.0, 0.01, 0.1)
+    for _ in range(500):
+        lp.update(5.0)
+    assert abs(lp.value - 10.0) < 1e-6
+
+
+def test_movmax_window_and_zero_start():
+    mm = MovMax(3)
+    assert mm.update(-5.0) == 0.0, "history starts at zero"
+    assert mm.update(4.0) == 4.0
+    assert mm.update(1.0) == 4.0
+    assert mm.update(2.0) == 4.0
+    assert mm.update(1.5) == 2.0, "4.0 left the window"
+    try:
+        MovMax(0)
+    except ValueError:
+        pass
+    else:
+        assert False
+
+
+def _detector(sensitivity):
+    det = StallDetector(config.default().stall)
+    det.sensitivity = sensitivity
+    return det
+
+
+def test_threshold_adds_the_window_offset_only_inside_the_speed_window():
+    det = _detector(6)
+    assert det.threshold_at(0.0) == 60.0
+    assert det.threshold_at(11.9) == 60.0
+    assert det.threshold_at(12.0) == 150.0
+    assert det.threshold_at(-450.0) == 150.0
+    assert det.threshold_at(451.0) == 60.0
+
+
+def test_spikes_are_rejected_against_the_last_accepted_sample():
+    det = _detector(6)
+    det.update(10.0, 0.0, 0.0)
+    det.update(500.0, 0.0, 0.0)
+    assert det.despiked == 10.0 and det.raw == 500.0
+    det.update(-80.0, 0.0, 0.0)
+    assert det.despiked == 80.0, "|error|, a 70 rise is accepted"
+
+
+def test_stall_fires_when_filtered_error_exceeds_threshold_then_resets():
+    det = _detector(6)
+    fired_at = None
+    for i in range(100):
+        if det.update(65.0 if i < 1 else min(65.0 + i, 80.0), 0.0, 0.0):
+            fired_at = i
+            break
+    assert fired_at is not None and fired_at > 5, "the low-pass delays detection"
+    assert det.filtered > 60.0 and det.stalled
+    assert det.last == 0.0
+    det.update(0.0, 0.0, 0.0)
+    assert det.filtered == 0.0, "filter state was cleared"
+
+
+def test_speed_is_converted_from_rpm_to_rad_per_second():
+    det = _detector(6)
+    det.update(0.0, 9.549296596425384 * 20, 0.0)
+    assert abs(det.speed - 20.0) < 1e-9 and det.threshold == 150.0

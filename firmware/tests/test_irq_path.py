@@ -1,0 +1,183 @@
+"""The I2C IRQ path: hardware event sequences, allocation-free handling, ordering of queued commands.
+
+Under the MicroPython unix port the fake target runs every handler call inside
+`micropython.heap_lock()`, as a hard IRQ does, so any allocation fails the handler.
+"""
+
+import struct
+import sys
+
+from joint import protocol as P
+from joint.sim.i2c_target import FakeI2CTarget
+from harness import Rig
+
+MICROPYTHON = sys.implementation.name == "micropython"
+A_MW, A_MR, RQ, WQ, E_R, E_W = 2, 1, 4, 8, 16, 32
+
+
+class EventLog:
+    """A handler that logs events into a preallocated buffer and echoes one byte."""
+
+    def __init__(self, target):
+        self._log = bytearray(32)
+        self._count = 0
+        self.buf = bytearray(1)
+        target.irq(self.handle, trigger=63, hard=True)
+
+    def handle(self, target):
+        flags = target.irq().flags()
+        self._log[self._count] = flags
+        self._count += 1
+        if flags & WQ:
+            target.readinto(self.buf)
+        if flags & RQ:
+            target.write(self.buf)
+
+    def take(self):
+        events = list(self._log[:self._count])
+        self._count = 0
+        return events
+
+
+def test_event_sequences_match_the_hardware():
+    for port in ("rp2", "stm32"):
+        target = FakeI2CTarget(0x11, port)
+        log = EventLog(target)
+        target.transfer(b"", 0)
+        assert log.take() == [A_MW, E_W], "scan is a 0-byte write"
+        target.transfer(b"XYZ", 0)
+        assert log.take() == [A_MW, WQ, WQ, WQ, E_W]
+        target.transfer(None, 1)
+        assert log.take() == [A_MR, RQ, RQ, E_R], "N-byte read: N+1 READ_REQ (%s)" % port
+        target.transfer(b"X", 1)
+        assert log.take() == [A_MW, WQ, E_W, A_MR, RQ, RQ, E_R], "write, repeated START, read"
+        assert target.handler_failures == 0
+
+
+def test_rp2_fifo_serves_a_whole_reply_from_one_read_request():
+    rig = Rig(port="rp2")
+    reads = []
+    original = rig.target.write
+
+    def counting_write(buf):
+        reads.append(len(buf))
+        return original(buf)
+    rig.target.write = counting_write
+    assert rig.xfer(bytes([P.ANGLEMOVED]), 5) == struct.pack("<f", 0.0) + bytes([0x0C])
+    assert reads[0] == 5, "the whole reply is offered to write() at once"
+
+
+def test_every_port_and_write_mode_gives_identical_replies():
+    replies = []
+    for port, whole in (("rp2", True), ("rp2", False), ("stm32", True), ("stm32", False)):
+        rig = Rig(port=port, whole_reply_writes=whole)
+        rig.motor.angle = -123.5
+        rig.run_ms(1)
+        replies.append((rig.xfer(bytes([P.ANGLEMOVED]), 5), rig.xfer(bytes([P.IDENTITY]), 10),
+                        rig.command("SETUP", 10, 10, 0, 0)))
+        rig.assert_handler_alive()
+    assert all(r == replies[0] for r in replies), replies
+    assert replies[0][0] == struct.pack("<f", -123.5) + bytes([0x0C])
+
+
+def test_read_without_a_register_repeats_the_last_one():
+    rig = Rig()
+    rig.motor.angle = 5.0
+    rig.run_ms(1)
+    first = rig.xfer(bytes([P.ANGLEMOVED]), 5)
+    rig.motor.angle = 6.0
+    rig.run_ms(1)
+    assert rig.xfer(None, 5) == struct.pack("<f", 6.0) + first[-1:]
+
+
+def test_write_without_read_is_a_complete_command():
+    rig = Rig()
+    rig.xfer(bytes([P.SETUP, 20, 20, 0, 0]), 0)
+    rig.run_ms(1)
+    assert rig.core.flags == 0x04
+    assert ("set_current", 20) in rig.motor.calls
+
+
+def test_longer_and_shorter_reads_than_the_reply():
+    rig = Rig()
+    assert rig.xfer(bytes([P.PING]), 4) == bytes([ord("O"), 0x0C, 0, 0]), "padded past the reply"
+    assert rig.xfer(bytes([P.PING]), 1) == b"O"
+
+
+def test_every_register_read_and_write_runs_without_allocation():
+    rig = Rig()
+    for addr in range(256):
+        reg = P.BY_ADDR[addr]
+        payload = bytes(reg.wsize) if reg is not None and reg.wsize else b"\x00\x00\x00\x00"
+        for data, read_len in ((bytes([addr]), 10), (bytes([addr]) + payload, 1),
+                               (bytes([addr]) + payload, 0), (None, 10), (bytes([addr]), 0)):
+            rig.xfer(data, read_len)
+        rig.run_ms(1)
+    rig.assert_handler_alive()
+
+
+def test_an_allocating_handler_would_be_caught():
+    target = FakeI2CTarget(0x11)
+
+    def allocating(t):
+        t.irq().flags()
+        return [1, 2, 3]
+    target.irq(allocating, trigger=63, hard=True)
+    target.transfer(b"\x0f", 1)
+    if MICROPYTHON:
+        assert target.handler_failures == 1 and not target.handler_installed, "heap_lock is active"
+    else:
+        assert target.handler_failures == 0
+
+
+def test_commands_are_applied_in_arrival_order():
+    rig = Rig()
+    rig.command("SETUP", 20, 20, 0, 0)
+    for rpm in (1.0, 2.0, 3.0):
+        rig.command("SETRPM", rpm)
+    rig.command("MOVESTEPS", 7)
+    rig.command("STOP", 0)
+    rig.run_ms(1)
+    assert rig.motor.calls[3:] == [("set_rpm", 1.0), ("set_rpm", 2.0), ("set_rpm", 3.0),
+                                   ("move_steps", 7), ("set_rpm", 0)]
+
+
+def test_a_full_queue_rejects_with_the_error_flag_and_drops_nothing_accepted():
+    rig = Rig()
+    rig.command("SETUP", 20, 20, 0, 0)
+    accepted = []
+    rejected = 0
+    for i in range(20):
+        flags = rig.command("MOVESTEPS", i)
+        if flags & P.FLAG_ERROR:
+            rejected += 1
+        else:
+            accepted.append(i)
+    assert len(accepted) == 15 and rejected == 5, (accepted, rejected)
+    assert rig.read("LASTERROR")[0][0] == P.REJECT_QUEUE_FULL
+    rig.run_ms(1)
+    assert [c[1] for c in rig.motor.calls if c[0] == "move_steps"][1:] == accepted
+    assert not rig.command("MOVESTEPS", 99) & P.FLAG_ERROR, "room again after the main loop ran"
+
+
+def test_motion_queued_before_a_stall_is_not_applied_after_it():
+    rig = Rig()
+    rig.command("SETUP", 20, 20, 0, 0)
+    rig.run_ms(1)
+    rig.command("SETRPM", 50.0)
+    rig.core._halt(P.FLAG_STALL)  # the main loop found a stall before applying the queued command
+    rig.motor.calls = []
+    rig.run_ms(1)
+    assert rig.motor.calls == []
+
+
+def test_a_second_blocking_command_is_rejected_while_one_runs():
+    rig = Rig()
+    rig.command("SETUP", 20, 20, 0, 0)
+    rig.command("HOME", 1, 10, 30, 15)
+    assert rig.command("CHECKORIENTATION", 2.0) & P.FLAG_ERROR
+    assert rig.read("LASTERROR")[0][0] == P.REJECT_BUSY
+    rig.command("STOP", 0)
+    assert rig.command("HOME", 1, 10, 30, 15) & P.FLAG_ERROR, "still winding down the aborted HOME"
+    rig.run_ms(600)
+    assert not rig.command("HOME", 1, 10, 30, 15) & P.FLAG_ERROR

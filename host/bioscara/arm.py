@@ -1,0 +1,355 @@
+"""The arm hardware interface: lifecycle, per-joint command modes and the homing flow.
+
+Follows the original ros2_control component (original-host-behaviour.md 6) with its bugs fixed:
+
+* lifecycle calls, `read` and `write` are serialized by one lock (9.2.12);
+* failures in activate/deactivate and in homing completion are raised, not swallowed (9.2.9);
+* releasing velocity mode commands 0 RPM, so a joint never keeps turning (9.2.8);
+* starting position mode takes the measured position as the command (no jump back);
+* an error in `read`/`write` deactivates the arm (disables the joints) before it is raised, as the
+  original's DEACTIVATE return made the controller manager do.
+
+State and command values are plain floats per joint: `position` (rad or m; NaN while not homed),
+`velocity` (units/s) and `home` (state: 1.0 homed, 0.0 not; command: +1/-1 start homing toward
+that end stop, 0 abort or idle).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from enum import Enum
+
+from .bus.base import Bus
+from .config import ArmConfig, JointConfig
+from .errors import BioscaraError, IncorrectStateError, InvalidArgumentError, NotHomedError
+from .joint import BlockingCommand, Joint
+
+log = logging.getLogger("bioscara.arm")
+
+
+class Lifecycle(Enum):
+    UNCONFIGURED = "unconfigured"
+    INACTIVE = "inactive"
+    ACTIVE = "active"
+    FINALIZED = "finalized"
+
+
+class Mode(Enum):
+    POSITION = "position"
+    VELOCITY = "velocity"
+    HOME = "home"
+
+
+@dataclass
+class JointValues:
+    position: float = 0.0
+    velocity: float = 0.0
+    home: float = 0.0
+
+
+@dataclass
+class ArmJoint:
+    config: JointConfig
+    joint: Joint
+    state: JointValues = field(default_factory=JointValues)
+    command: JointValues = field(default_factory=JointValues)
+    modes: set[Mode] = field(default_factory=set)
+
+
+class LifecycleError(BioscaraError):
+    """A lifecycle transition was asked for from the wrong state."""
+
+
+def make_joint(config: JointConfig, bus: Bus) -> Joint:
+    return Joint(config.name, config.address, bus, reduction=config.reduction, min=config.min,
+                 max=config.max, max_velocity=config.max_velocity)
+
+
+class Arm:
+    """The four joints of the arm behind one bus, driven in read/write cycles."""
+
+    def __init__(self, config: ArmConfig, bus: Bus) -> None:
+        self.config = config
+        self.bus = bus
+        self.lifecycle = Lifecycle.UNCONFIGURED
+        self.joints = {name: ArmJoint(jc, make_joint(jc, bus)) for name, jc in config.joints.items()}
+        self.fault: BioscaraError | None = None
+        self._lock = threading.RLock()
+
+    def __getitem__(self, name: str) -> ArmJoint:
+        try:
+            return self.joints[name]
+        except KeyError:
+            raise InvalidArgumentError(f"no joint {name!r}; the arm has {', '.join(self.joints)}") from None
+
+    # ---- lifecycle ----
+
+    def _expect(self, action: str, *states: Lifecycle) -> None:
+        if self.lifecycle not in states:
+            allowed = " or ".join(s.value for s in states)
+            raise LifecycleError(f"cannot {action} while {self.lifecycle.value} (needs {allowed})")
+
+    def configure(self) -> None:
+        """Connect to every joint (restoring homing offsets) and zero states and commands."""
+        with self._lock:
+            self._expect("configure", Lifecycle.UNCONFIGURED)
+            opened = []
+            try:
+                for aj in self.joints.values():
+                    aj.joint.init()
+                    opened.append(aj)
+            except BioscaraError:
+                for aj in opened:
+                    aj.joint.close()
+                raise
+            for aj in self.joints.values():
+                aj.state, aj.command, aj.modes = JointValues(), JointValues(), set()
+            self.fault = None
+            self.lifecycle = Lifecycle.INACTIVE
+
+    def cleanup(self) -> None:
+        with self._lock:
+            self._expect("clean up", Lifecycle.INACTIVE)
+            for aj in self.joints.values():
+                aj.joint.close()
+            self.lifecycle = Lifecycle.UNCONFIGURED
+
+    def activate(self) -> None:
+        """Enable every joint with its limits; commands start at the measured position, velocity 0."""
+        with self._lock:
+            self._expect("activate", Lifecycle.INACTIVE)
+            done: list[ArmJoint] = []
+            try:
+                for aj in self.joints.values():
+                    aj.modes = set()
+                    self._activate_joint(aj)
+                    done.append(aj)
+            except BioscaraError:
+                for aj in done:
+                    self._try(aj.joint.disable)
+                raise
+            self.lifecycle = Lifecycle.ACTIVE
+            self.read()
+            for aj in self.joints.values():
+                aj.command = JointValues(aj.state.position, 0.0, 0.0)
+
+    def deactivate(self) -> None:
+        """Disable every joint (freewheeling). Tries all joints; raises the first failure."""
+        with self._lock:
+            self._expect("deactivate", Lifecycle.ACTIVE)
+            self.lifecycle = Lifecycle.INACTIVE
+            self._disable_all()
+
+    def shutdown(self) -> None:
+        with self._lock:
+            if self.lifecycle is Lifecycle.ACTIVE:
+                self.deactivate()
+            if self.lifecycle is Lifecycle.INACTIVE:
+                self.cleanup()
+            self.lifecycle = Lifecycle.FINALIZED
+            log.info("shut down")
+
+    def recover(self) -> None:
+        """The lifecycle's error transition: disable and disconnect, ending unconfigured if that worked."""
+        with self._lock:
+            try:
+                if self.lifecycle is Lifecycle.ACTIVE:
+                    self.lifecycle = Lifecycle.INACTIVE
+                    self._disable_all()
+                if self.lifecycle is Lifecycle.INACTIVE:
+                    self.cleanup()
+            except BioscaraError:
+                self.lifecycle = Lifecycle.FINALIZED
+                raise
+
+    def _disable_all(self) -> None:
+        first = None
+        for aj in self.joints.values():
+            aj.modes = set()
+            try:
+                self._deactivate_joint(aj)
+            except BioscaraError as exc:
+                log.error("failed to disable joint %s: %s", aj.config.name, exc)
+                first = first or exc
+        if first is not None:
+            raise first
+
+    @staticmethod
+    def _try(action: Callable[[], object]) -> None:
+        try:
+            action()
+        except BioscaraError as exc:
+            log.error("%s", exc)
+
+    # ---- per-joint helpers (the original's activate_joint / deactivate_joint / homing) ----
+
+    def _activate_joint(self, aj: ArmJoint) -> None:
+        jc, joint = aj.config, aj.joint
+        joint.enable(jc.drive_current, jc.hold_current)
+        if jc.stall_threshold > 0:
+            joint.enable_stallguard(jc.stall_threshold)
+        joint.set_max_acceleration(jc.max_acceleration)
+        joint.set_max_velocity(jc.max_velocity)
+
+    def _deactivate_joint(self, aj: ArmJoint) -> None:
+        aj.joint.disable()
+
+    def _start_homing(self, aj: ArmJoint, direction: float) -> None:
+        homing = aj.config.homing
+        self._activate_joint(aj)
+        aj.joint.set_max_acceleration(homing.acceleration)
+        aj.joint.start_homing(math.copysign(homing.speed, direction), homing.threshold, homing.current)
+        log.info("started homing joint %s", aj.config.name)
+
+    def _stop_homing(self, aj: ArmJoint) -> bool:
+        """Restore limits, stop, verify; True if the joint ended homed. Then freewheel."""
+        jc, joint = aj.config, aj.joint
+        joint.set_max_acceleration(jc.max_acceleration)
+        joint.set_max_velocity(jc.max_velocity)
+        joint.stop()
+        try:
+            joint.post_homing()
+            homed = True
+        except NotHomedError:
+            homed = False
+        self._deactivate_joint(aj)
+        log.info("finished homing joint %s: %s", jc.name, "homed" if homed else "not homed")
+        return homed
+
+    # ---- cycle ----
+
+    def read(self) -> None:
+        """Refresh every joint's state (2 transactions per joint); finish homings that ended."""
+        with self._lock:
+            self._expect("read", Lifecycle.INACTIVE, Lifecycle.ACTIVE)
+            try:
+                for aj in self.joints.values():
+                    self._read_joint(aj)
+            except BioscaraError as exc:
+                self._fault(exc)
+                raise
+
+    def _read_joint(self, aj: ArmJoint) -> None:
+        joint = aj.joint
+        try:
+            aj.state.position = joint.get_position()
+        except NotHomedError:
+            aj.state.position = math.nan
+        aj.state.velocity = joint.get_velocity()
+        aj.state.home = 1.0 if joint.is_homed() else 0.0
+        if joint.current_blocking is BlockingCommand.HOME and not joint.is_busy():
+            if self._stop_homing(aj):
+                aj.state.position = joint.get_position()  # in the frame of the new offset
+            else:
+                log.warning("homing of %s ended without reaching the end stop", aj.config.name)
+            aj.command.home = 0.0
+            aj.state.home = 1.0 if joint.is_homed() else 0.0
+
+    def write(self) -> None:
+        """Send the commands of every joint's active mode."""
+        with self._lock:
+            self._expect("write", Lifecycle.ACTIVE)
+            try:
+                for aj in self.joints.values():
+                    for mode in aj.modes:
+                        self._write_mode(aj, mode)
+            except BioscaraError as exc:
+                self._fault(exc)
+                raise
+
+    def _write_mode(self, aj: ArmJoint, mode: Mode) -> None:
+        joint = aj.joint
+        if mode is Mode.POSITION:
+            joint.set_position(aj.command.position)
+        elif mode is Mode.VELOCITY:
+            joint.set_velocity(aj.command.velocity)
+        elif aj.command.home == 0.0:
+            if joint.current_blocking is BlockingCommand.HOME:
+                self._stop_homing(aj)
+        elif joint.current_blocking is BlockingCommand.NONE:
+            self._start_homing(aj, aj.command.home)
+        elif joint.current_blocking is not BlockingCommand.HOME:
+            raise IncorrectStateError(f"busy with {joint.current_blocking.name}", joint=aj.config.name)
+
+    def _fault(self, exc: BioscaraError) -> None:
+        """An error in the cycle: disable the joints (best effort), remember why."""
+        self.fault = exc
+        log.error("arm fault, disabling joints: %s", exc)
+        if self.lifecycle is Lifecycle.ACTIVE:
+            self.lifecycle = Lifecycle.INACTIVE
+            try:
+                self._disable_all()
+            except BioscaraError as disable_error:
+                log.error("could not disable every joint after the fault: %s", disable_error)
+
+    # ---- command modes ----
+
+    def switch_modes(self, start: Iterable[str] = (), stop: Iterable[str] = ()) -> None:
+        """Start/stop command interfaces named "<joint>/<mode>" (one active mode per joint).
+
+        Validated as a whole first (nothing changes if any part is refused), then performed:
+        starting `home` disables the joint and clears its trigger, stopping `home` re-enables it,
+        stopping `velocity` commands 0, starting `position` holds the measured position.
+        """
+        with self._lock:
+            starting = [self._interface(name) for name in start]
+            stopping = [self._interface(name) for name in stop]
+            new_modes = {name: set(aj.modes) for name, aj in self.joints.items()}
+            for aj, mode in stopping:
+                if mode is Mode.HOME and aj.joint.current_blocking is BlockingCommand.HOME:
+                    raise IncorrectStateError("homing is still ongoing", joint=aj.config.name)
+                if mode not in new_modes[aj.config.name]:
+                    log.warning("%s/%s was not started", aj.config.name, mode.value)
+                new_modes[aj.config.name].discard(mode)
+            for aj, mode in starting:
+                if mode in new_modes[aj.config.name]:
+                    raise IncorrectStateError(f"{mode.value} is already active", joint=aj.config.name)
+                new_modes[aj.config.name].add(mode)
+            for name, modes in new_modes.items():
+                if len(modes) > 1:
+                    listed = ", ".join(sorted(m.value for m in modes))
+                    raise IncorrectStateError(f"only one command mode may be active, not {listed}", joint=name)
+                if modes & {Mode.POSITION, Mode.VELOCITY} and not self.joints[name].joint.is_homed():
+                    mode = next(iter(modes))
+                    raise NotHomedError(f"cannot start {mode.value} mode before homing", joint=name)
+            self._perform_switch(starting, stopping, new_modes)
+
+    def _perform_switch(self, starting: list[tuple[ArmJoint, Mode]], stopping: list[tuple[ArmJoint, Mode]],
+                        new_modes: dict[str, set[Mode]]) -> None:
+        for name, modes in new_modes.items():
+            self.joints[name].modes = modes
+        for aj, mode in stopping:
+            if mode is Mode.VELOCITY:
+                aj.command.velocity = 0.0
+                if self.lifecycle is Lifecycle.ACTIVE:
+                    aj.joint.set_velocity(0.0)
+            elif mode is Mode.HOME and self.lifecycle is Lifecycle.ACTIVE:
+                self._activate_joint(aj)
+        for aj, mode in starting:
+            if mode is Mode.HOME:
+                aj.command.home = 0.0
+                if self.lifecycle is Lifecycle.ACTIVE:
+                    self._deactivate_joint(aj)
+            elif mode is Mode.POSITION:
+                aj.command.position = aj.state.position
+            else:
+                aj.command.velocity = 0.0
+
+    def _interface(self, name: str) -> tuple[ArmJoint, Mode]:
+        joint, _, mode = name.partition("/")
+        try:
+            return self[joint], Mode(mode)
+        except ValueError:
+            raise InvalidArgumentError(f"unknown command interface {name!r} "
+                                       "(use <joint>/position, /velocity or /home)") from None
+
+    def set_command(self, joint: str, mode: str, value: float) -> None:
+        """Set a command value (it is sent by the next `write` if that mode is active)."""
+        if not math.isfinite(value):
+            raise InvalidArgumentError(f"{mode} command must be finite, got {value}", joint=joint)
+        with self._lock:
+            setattr(self[joint].command, Mode(mode).value, float(value))

@@ -1,0 +1,50 @@
+"""Bus transports, chosen by a URL as python-can chooses interfaces.
+
+    smbus:1              /dev/i2c-1 through smbus2 (also smbus:/dev/i2c-3)
+    blinka:              Adafruit Blinka busio.I2C (any Blinka board or USB I2C adapter)
+    serial:/dev/ttyACM0  a USB MicroPython board running the HIL bridge (or the simulator's pty)
+    sim:                 simulated joints running the real firmware, virtual time
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable
+
+from ..errors import ConfigError
+from .base import Bus, BusStats, LinkStats
+
+__all__ = ["Bus", "BusStats", "LinkStats", "open_bus", "register_transport", "TRANSPORTS"]
+
+
+def _smbus(target: str, **kwargs: Any) -> Bus:
+    from .smbus import SMBusBus
+    return SMBusBus(int(target) if target.isdigit() else (target or 1), **kwargs)
+
+
+def _blinka(target: str, **kwargs: Any) -> Bus:
+    from .blinka import BlinkaBus
+    return BlinkaBus(**kwargs)
+
+
+def _sim(target: str, **kwargs: Any) -> Bus:
+    from .sim import SimBus
+    joints = kwargs.pop("sim_joints", None)
+    if joints is None:
+        raise ConfigError("sim: needs the arm configuration to know which joints to simulate")
+    return SimBus(joints, realtime=kwargs.pop("realtime", target == "realtime"), **kwargs)
+
+
+TRANSPORTS: dict[str, Callable[..., Bus]] = {"smbus": _smbus, "blinka": _blinka, "sim": _sim}
+
+
+def register_transport(scheme: str, factory: Callable[..., Bus]) -> None:
+    TRANSPORTS[scheme] = factory
+
+
+def open_bus(url: str, **kwargs: Any) -> Bus:
+    """Open the bus named by `url` (see the module docstring); kwargs go to the transport."""
+    scheme, sep, target = url.partition(":")
+    if not sep or scheme not in TRANSPORTS:
+        known = ", ".join(f"{name}:" for name in TRANSPORTS)
+        raise ConfigError(f"unknown bus {url!r}; use one of {known}")
+    return TRANSPORTS[scheme](target, **kwargs)

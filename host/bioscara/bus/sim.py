@@ -1,0 +1,111 @@
+"""The simulated bus: joints running the real firmware on simulated steppers, in virtual time.
+
+Each transaction advances the virtual clock by its wire time at `speed_hz`, and `sleep()` advances
+it without waiting, so scenarios run deterministically and much faster than real time. With
+`realtime=True` the simulation follows the wall clock instead (interactive tools, the pty server).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass
+from typing import Any, Sequence
+
+from ..firmware import config as firmware_config
+from ..firmware.sim.bus import SimJointBus
+from ..firmware.sim.clock import VirtualClock
+from ..firmware.sim.joint import SimJoint
+from ..firmware.sim.stepper import SimStepper
+from .base import Bus
+
+log = logging.getLogger("bioscara.sim")
+
+
+@dataclass(frozen=True)
+class SimJointSpec:
+    """Where a simulated joint sits: its firmware identity and its mechanics in joint units.
+
+    The rotor starts at `start`; walls stand at the joint limits `min` and `max` (the end stops
+    homing drives into), mapped to motor angle through `reduction` (rad of motor per joint unit).
+    """
+
+    firmware_joint: str  # J1..J4
+    address: int
+    reduction: float
+    min: float
+    max: float
+    start: float
+
+    def motor_degrees(self, position: float) -> float:
+        return math.degrees(self.reduction * (position - self.start))
+
+
+class SimBus(Bus):
+    scheme = "sim"
+
+    def __init__(self, joints: Sequence[SimJointSpec], *, seed: int = 1, realtime: bool = False,
+                 port: str = "rp2", **kwargs: Any) -> None:
+        super().__init__(**kwargs)
+        self.realtime = realtime
+        self.clock = VirtualClock()
+        self.sim = SimJointBus(self.clock, bus_hz=self.speed_hz)
+        self.specs = {spec.address: spec for spec in joints}
+        for i, spec in enumerate(joints):
+            stepper = SimStepper(self.clock, seed=seed + i)
+            low, high = sorted((spec.motor_degrees(spec.min), spec.motor_degrees(spec.max)))
+            stepper.set_end_stops(low, high)
+            cfg = firmware_config.parse({"joint": spec.firmware_joint, "address": spec.address},
+                                        f"simulated {spec.firmware_joint}")
+            self.sim.add(SimJoint(cfg, self.clock, stepper, port=port, write=log.info))
+        self._wall_start = time.monotonic()
+        self._virtual_start = self.clock.now_us
+
+    def describe(self) -> str:
+        return "sim:" + ("realtime" if self.realtime else "")
+
+    def joint(self, address: int) -> SimJoint:
+        """The simulated joint at `address` (to inject collisions, reboot it, look at its rotor)."""
+        joint = self.sim.joint_at(address)
+        if joint is None:
+            raise KeyError(f"no simulated joint at 0x{address:02x}")
+        return joint
+
+    def joint_position(self, address: int) -> float:
+        """True joint position (joint units) from the simulated rotor angle."""
+        spec = self.specs[address]
+        return spec.start + math.radians(self.joint(address).stepper.rotor_angle()) / spec.reduction
+
+    def _catch_up(self) -> None:
+        if self.realtime:
+            elapsed_us = int((time.monotonic() - self._wall_start) * 1e6)
+            self.sim.run_until(self._virtual_start + elapsed_us)
+
+    def _transfer_once(self, addr: int, write: bytes | None, read_len: int) -> bytes:
+        self._catch_up()
+        return self.sim.transfer(addr, write, read_len)
+
+    def _probe(self, addr: int) -> bool:
+        self._catch_up()
+        try:
+            self.sim.transfer(addr, b"", 0)
+        except OSError:
+            return False
+        return True
+
+    def sleep(self, seconds: float) -> None:
+        if self.realtime:
+            time.sleep(seconds)
+            self._catch_up()
+        else:
+            self.sim.sleep(seconds)
+
+    def monotonic(self) -> float:
+        if self.realtime:
+            self._catch_up()
+        return self.clock.now_us / 1e6
+
+    def run_for(self, seconds: float) -> None:
+        """Advance the simulation (virtual mode), e.g. to let the joints boot."""
+        self.sim.sleep(seconds)

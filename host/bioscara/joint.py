@@ -1,0 +1,404 @@
+"""One joint controller on the bus: the original BaseJoint/Joint API, in Python naming.
+
+Every method sends exactly the original's transaction (original-host-behaviour.md 2.4) and converts
+units through the joint's `Transmission`. Differences from the original, all fixes of its bugs (9.2):
+
+* positions outside [min, max] and velocities above `max_velocity` are rejected with
+  INVALID_ARGUMENT and never sent; bad values of any kind never reach the wire;
+* velocity and acceleration limits use |reduction|; the homing RPM is rounded, not truncated;
+* enabled/homed guards use flags no older than `flags_max_age` (the control cycle's read refreshes
+  them, so a write in the same cycle costs no extra transaction; stale flags cost one PING);
+* flags are only taken from successful transfers; every wait has a timeout;
+* a rejected homing call changes nothing (the offset is taken only once homing succeeded);
+* `get_position` raises NotHomedError instead of returning 0.0 when the joint is not homed;
+* `init` twice is harmless; `close` is explicit and idempotent.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from enum import Enum, IntEnum
+
+from .bus.base import Bus
+from .errors import (
+    BioscaraError, IncorrectStateError, InvalidArgumentError, NotEnabledError, NotHomedError,
+    NotInitError, StalledError,
+)
+from .firmware import protocol as P
+from .transmission import Transmission
+
+CACHED_FLAGS = P.FLAG_STALL | P.FLAG_BUSY | P.FLAG_NOTHOMED | P.FLAG_NOTENABLED
+
+
+class BrakeMode(IntEnum):
+    FREEWHEEL = P.BRAKE_FREEWHEEL
+    COOLBRAKE = P.BRAKE_COOLBRAKE
+    HARDBRAKE = P.BRAKE_HARDBRAKE
+
+
+class BlockingCommand(Enum):
+    NONE = 0
+    HOME = P.HOME
+
+
+class WaitTimeoutError(BioscaraError):
+    """A joint stayed BUSY longer than the caller allowed."""
+
+
+@dataclass(frozen=True)
+class Identity:
+    protocol: int
+    firmware: tuple[int, int, int]
+    joint_id: int
+    spec_hash: int
+
+    @property
+    def firmware_version(self) -> str:
+        return ".".join(str(v) for v in self.firmware)
+
+    @property
+    def spec_matches(self) -> bool:
+        """True if the joint was built from the same protocol spec as this host."""
+        return self.spec_hash == P.SPEC_HASH
+
+
+@dataclass(frozen=True)
+class RejectInfo:
+    reason: int
+    register: int
+    count: int
+
+    @property
+    def text(self) -> str:
+        reg = P.BY_ADDR[self.register]
+        name = reg.name if reg else f"0x{self.register:02x}"
+        return f"{name}: {P.reject_string(self.reason)}"
+
+
+class Joint:
+    """A joint controller at `address` on `bus`.
+
+    Positions are in joint units (rad for revolute joints, m for prismatic ones), velocities in
+    units/s, accelerations in units/s^2, currents in percent of the driver's full scale.
+    """
+
+    def __init__(self, name: str, address: int, bus: Bus, *, reduction: float = 1.0,
+                 min: float = -math.inf, max: float = math.inf, max_velocity: float = math.inf,
+                 flags_max_age: float = 0.02) -> None:
+        if not min < max:
+            raise InvalidArgumentError(f"min ({min}) must be below max ({max})", joint=name)
+        self.name = name
+        self.address = address
+        self.bus = bus
+        self.min = min
+        self.max = max
+        self.max_velocity = max_velocity
+        self.flags_max_age = flags_max_age
+        self.transmission = Transmission(reduction)
+        self.flags = P.FLAGS_AT_BOOT
+        self.flags_time = -math.inf
+        self.current_blocking = BlockingCommand.NONE
+        self._homing_offset = 0.0
+        self._open = False
+
+    def __repr__(self) -> str:
+        return f"Joint({self.name!r}, 0x{self.address:02x}, flags={P.describe_flags(self.flags)})"
+
+    # ---- lifecycle ----
+
+    def init(self) -> None:
+        """Check communication; restore the homing offset if the joint is still homed."""
+        if self._open:
+            return
+        self._open = True
+        try:
+            self.check_com()
+            if self.is_homed():
+                self.transmission = self.transmission.with_offset(self.get_homing_offset())
+        except BioscaraError:
+            self._open = False
+            raise
+
+    def close(self) -> None:
+        """Stop using the joint (no motor I/O; call `disable` first to de-energize). Idempotent."""
+        self._open = False
+
+    deinit = close
+
+    def __enter__(self) -> Joint:
+        self.init()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    @property
+    def is_open(self) -> bool:
+        return self._open
+
+    @property
+    def offset(self) -> float:
+        return self.transmission.offset
+
+    # ---- flags ----
+
+    def is_homed(self) -> bool:
+        return not self.flags & P.FLAG_NOTHOMED
+
+    def is_enabled(self) -> bool:
+        return not self.flags & P.FLAG_NOTENABLED
+
+    def is_stalled(self) -> bool:
+        return bool(self.flags & P.FLAG_STALL)
+
+    def is_busy(self) -> bool:
+        return bool(self.flags & P.FLAG_BUSY)
+
+    def get_flags(self) -> int:
+        """Refresh the flags with a PING; returns them."""
+        self._read(P.register(P.PING))
+        return self.flags
+
+    def check_com(self) -> None:
+        (ack,) = self._read(P.register(P.PING))
+        if ack != P.ACK:
+            raise BioscaraError(f"PING answered 0x{ack:02x}, expected 'O'", joint=self.name)
+
+    # ---- commands ----
+
+    def enable(self, drive_current: int, hold_current: int) -> None:
+        """Energize with currents in % (0..100); also turns stall detection off, as SETUP does."""
+        self._command(P.SETUP, drive_current, hold_current, 0, 0)
+        if not self.is_enabled():
+            raise NotEnabledError("still not enabled after SETUP", joint=self.name)
+
+    def disable(self) -> None:
+        """Stop, zero both currents and freewheel. Tries every step; raises the first failure."""
+        first: BioscaraError | None = None
+        for step in (self.stop, lambda: self.set_hold_current(0), lambda: self.set_drive_current(0),
+                     lambda: self.set_brake_mode(BrakeMode.FREEWHEEL)):
+            try:
+                step()
+            except BioscaraError as exc:
+                first = first or exc
+        if first is not None:
+            raise first
+
+    def stop(self) -> None:
+        """RPM 0; also aborts a running homing (the firmware clears BUSY)."""
+        self._command(P.STOP, 0)
+
+    def disable_closed_loop(self) -> None:
+        self._command(P.DISABLECLOSEDLOOP, 0)
+
+    def set_drive_current(self, percent: int) -> None:
+        self._command(P.SETCURRENT, percent)
+
+    def set_hold_current(self, percent: int) -> None:
+        self._command(P.SETHOLDCURRENT, percent)
+
+    def set_brake_mode(self, mode: BrakeMode | int) -> None:
+        self._command(P.SETBRAKEMODE, int(mode))
+
+    def set_max_acceleration(self, acceleration: float) -> None:
+        """Motion acceleration limit, joint units/s^2 (> 0)."""
+        self._command(P.SETMAXACCELERATION, self._positive(acceleration, "acceleration"))
+
+    def set_max_velocity(self, velocity: float) -> None:
+        """Positioning velocity limit, joint units/s (> 0)."""
+        self._command(P.SETMAXVELOCITY, self._positive(velocity, "velocity"))
+
+    def _positive(self, value: float, what: str) -> float:
+        if not (math.isfinite(value) and value > 0):
+            raise InvalidArgumentError(f"max {what} must be a positive number, got {value}", joint=self.name)
+        return self.transmission.motor_limit(value)
+
+    def enable_stallguard(self, sensitivity: int) -> None:
+        """Stall detection with threshold sensitivity x 10 (0..255); call after `enable`."""
+        self._command(P.ENABLESTALLGUARD, sensitivity)
+
+    def get_position(self) -> float:
+        """Joint position (rad or m). Raises NotHomedError if the joint is not homed."""
+        (degrees,) = self._read(P.register(P.ANGLEMOVED))
+        if not self.is_homed():
+            raise NotHomedError("position is meaningless before homing", joint=self.name)
+        return self.transmission.position(degrees)
+
+    def set_position(self, position: float) -> None:
+        """Move to `position` (joint units) within [min, max]."""
+        if not (math.isfinite(position) and self.min <= position <= self.max):
+            raise InvalidArgumentError(f"position {position} is outside [{self.min}, {self.max}]", joint=self.name)
+        self._require_enabled_and_homed()
+        self._check_stall(self._command(P.MOVETOANGLE, self.transmission.motor_degrees(position)))
+
+    def get_velocity(self) -> float:
+        """Encoder velocity, joint units/s."""
+        (rpm,) = self._read(P.register(P.GETENCODERRPM))
+        return self.transmission.velocity(rpm)
+
+    def set_velocity(self, velocity: float) -> None:
+        """Turn at `velocity` (joint units/s); |velocity| <= max_velocity."""
+        if not (math.isfinite(velocity) and abs(velocity) <= self.max_velocity):
+            raise InvalidArgumentError(f"velocity {velocity} exceeds the limit {self.max_velocity}", joint=self.name)
+        self._require_enabled_and_homed()
+        self._check_stall(self._command(P.SETRPM, self.transmission.motor_rpm(velocity)))
+
+    def move_steps(self, steps: int) -> None:
+        """Relative move in the stepper's microsteps (1/256 full step); allowed before homing."""
+        self._require_enabled()
+        self._check_stall(self._command(P.MOVESTEPS, steps))
+
+    def check_orientation(self, degrees: float = 2.0, *, timeout: float = 30.0) -> None:
+        """The firmware's wiring check by +/- `degrees` of motor angle; blocks until done."""
+        self._require_enabled()
+        self._command(P.CHECKORIENTATION, degrees)
+        self.wait_while_busy(0.01, timeout)
+        self._check_stall(self.flags)
+
+    # ---- homing ----
+
+    def home(self, velocity: float, sensitivity: int, current: int, *, timeout: float = 600.0) -> None:
+        """Blocking homing: start, wait until the joint is no longer busy, verify."""
+        self.start_homing(velocity, sensitivity, current)
+        try:
+            self.wait_while_busy(0.1, timeout)
+        except BioscaraError:
+            self.current_blocking = BlockingCommand.NONE
+            self.stop()
+            raise
+        self.post_homing()
+
+    def start_homing(self, velocity: float, sensitivity: int, current: int) -> None:
+        """Start driving into the end stop at `velocity` (joint units/s; its sign picks the end stop).
+
+        `sensitivity` is the |PID error| end-stop threshold (0..255), `current` the homing drive
+        current in %. Nothing changes if the call is rejected.
+        """
+        if self.current_blocking is not BlockingCommand.NONE:
+            raise IncorrectStateError(f"{self.current_blocking.name} is still running", joint=self.name)
+        rpm = self.transmission.motor_rpm(velocity) if math.isfinite(velocity) else math.nan
+        if not (1.0 <= abs(rpm) <= 250.0):
+            raise InvalidArgumentError(f"homing velocity {velocity} is {rpm:.2f} motor RPM, "
+                                       "outside 1..250", joint=self.name)
+        self._require_enabled()
+        self._command(P.HOME, 1 if rpm > 0 else 0, round(abs(rpm)), sensitivity, current)
+        self.current_blocking = BlockingCommand.HOME
+        self._homing_offset = self.max if velocity > 0 else self.min
+
+    def post_homing(self) -> None:
+        """After BUSY dropped: verify the joint is homed and store the offset on the joint."""
+        if self.current_blocking is not BlockingCommand.HOME:
+            raise IncorrectStateError("no homing was started", joint=self.name)
+        self.current_blocking = BlockingCommand.NONE
+        self.get_flags()
+        if not self.is_homed():
+            raise NotHomedError("homing ended without reaching the end stop", joint=self.name)
+        self.transmission = self.transmission.with_offset(self._homing_offset)
+        self._command(P.HOMEOFFSET, self._homing_offset)
+
+    def get_homing_offset(self) -> float:
+        """The offset stored on the joint by the last homing (joint units)."""
+        self._require_open()
+        if not self.is_homed():
+            raise NotHomedError("no homing offset before homing", joint=self.name)
+        (offset,) = self._read(P.register(P.HOMEOFFSET))
+        return offset
+
+    def wait_while_busy(self, period: float, timeout: float) -> None:
+        """Poll the flags every `period` s until BUSY drops; WaitTimeoutError after `timeout` s."""
+        deadline = self.bus.monotonic() + timeout
+        while True:
+            self.bus.sleep(period)
+            self.get_flags()
+            if not self.is_busy():
+                return
+            if self.bus.monotonic() >= deadline:
+                raise WaitTimeoutError(f"still busy after {timeout:g} s", joint=self.name)
+
+    # ---- extensions ----
+
+    def identity(self) -> Identity:
+        """Protocol and firmware version, joint id and spec hash (firmware of this project only)."""
+        protocol, major, minor, patch, joint_id, spec_hash = self._read(P.register(P.IDENTITY))
+        return Identity(protocol, (major, minor, patch), joint_id, spec_hash)
+
+    def last_reject(self) -> RejectInfo:
+        """Why the joint last rejected a frame."""
+        return RejectInfo(*self._read(P.register(P.LASTERROR)))
+
+    def read_register(self, name: str) -> tuple[float | int, ...]:
+        """Read any readable register by name; returns its decoded payload."""
+        reg = P.register(name)
+        if not reg.readable:
+            raise InvalidArgumentError(f"{reg.name} is not readable", joint=self.name)
+        return self._read(reg)
+
+    def write_register(self, name: str, *values: float | int) -> int:
+        """Write any writable register by name without the API's guards; returns the reply flags."""
+        reg = P.register(name)
+        return self._command(reg.addr, *values)
+
+    # ---- transactions ----
+
+    def _require_open(self) -> None:
+        if not self._open:
+            raise NotInitError("joint is not initialized (call init())", joint=self.name)
+
+    def _fresh_flags(self) -> None:
+        if self.bus.monotonic() - self.flags_time > self.flags_max_age:
+            self.get_flags()
+
+    def _require_enabled(self) -> None:
+        self._require_open()
+        self._fresh_flags()
+        if not self.is_enabled():
+            raise NotEnabledError("not enabled", joint=self.name)
+
+    def _require_enabled_and_homed(self) -> None:
+        self._require_enabled()
+        if not self.is_homed():
+            raise NotHomedError("not homed", joint=self.name)
+
+    def _check_stall(self, flags: int) -> None:
+        if flags & P.FLAG_STALL:
+            raise StalledError("stall detected: the motor stopped", joint=self.name)
+
+    def _take_flags(self, flags: int) -> None:
+        self.flags = flags & CACHED_FLAGS
+        self.flags_time = self.bus.monotonic()
+
+    def _read(self, reg: P.Register) -> tuple:
+        self._require_open()
+        reply = self.bus.transfer(self.address, bytes([reg.addr]), reg.rsize + 1)
+        self._take_flags(reply[-1])
+        if reply[-1] & P.FLAG_ERROR:
+            raise BioscaraError(f"the joint rejected the read of {reg.name}", joint=self.name)
+        return reg.decode(reply[:-1])
+
+    def _command(self, addr: int, *values: float | int) -> int:
+        """Write a register, returning the reply flags (which already show the command's effect)."""
+        self._require_open()
+        reg = P.register(addr)
+        try:
+            payload = reg.encode(*values)
+        except ValueError as exc:
+            raise InvalidArgumentError(str(exc), joint=self.name) from None
+        reply = self.bus.transfer(self.address, bytes([reg.addr]) + payload, 1)
+        self._take_flags(reply[0])
+        if reply[0] & P.FLAG_ERROR:
+            raise self._rejected(reg)
+        return reply[0]
+
+    def _rejected(self, reg: P.Register) -> BioscaraError:
+        try:
+            why = self.last_reject()
+        except BioscaraError:
+            return BioscaraError(f"the joint rejected {reg.name}", joint=self.name)
+        if why.reason == P.REJECT_BUSY:
+            return IncorrectStateError(f"the joint rejected {why.text}", joint=self.name)
+        if why.reason == P.REJECT_DISABLED:
+            return NotEnabledError(f"the joint rejected {why.text}", joint=self.name)
+        if why.reason in (P.REJECT_VALUE, P.REJECT_LENGTH):
+            return InvalidArgumentError(f"the joint rejected {why.text}", joint=self.name)
+        return BioscaraError(f"the joint rejected {why.text}", joint=self.name)
