@@ -1,0 +1,3 @@
+"""Command modules of the `bioscara` CLI. Each defines NAME, HELP, add_arguments(parser), run(args, session)."""
+
+COMMANDS = ["demo"]

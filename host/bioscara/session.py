@@ -1,0 +1,88 @@
+"""What a command-line invocation works with: the configuration, the bus, the arm, the output."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from dataclasses import replace
+from typing import Any
+
+from rich.console import Console
+
+from .arm import Arm
+from .bus import Bus
+from .config import ArmConfig, load_config
+from .hardware import open_arm, open_arm_bus
+from .joint import Joint
+from .arm import make_joint
+
+
+class Session:
+    """Lazily opens what a command needs, from `--config` and `--bus`; closes it at the end."""
+
+    def __init__(self, args: argparse.Namespace) -> None:
+        self.args = args
+        self.json = bool(getattr(args, "json", False))
+        self.console = Console(stderr=self.json)
+        self._config: ArmConfig | None = None
+        self._bus: Bus | None = None
+        self._arm: Arm | None = None
+
+    @property
+    def config(self) -> ArmConfig:
+        if self._config is None:
+            config = load_config(getattr(self.args, "config", None))
+            url = getattr(self.args, "bus", None)
+            if url:
+                config = replace(config, bus=replace(config.bus, url=url, use_mock_hardware=False))
+            self._config = config
+        return self._config
+
+    @property
+    def bus(self) -> Bus:
+        if self._bus is None:
+            self._bus = open_arm_bus(self.config)
+            if self._bus.scheme == "sim" and not getattr(self._bus, "realtime", False):
+                self._bus.sleep(2.0)  # simulated joints boot (orientation check) before they answer
+        return self._bus
+
+    @property
+    def arm(self) -> Arm:
+        if self._arm is None:
+            self._arm = open_arm(self.config, self.bus)
+        return self._arm
+
+    def joint(self, name: str) -> Joint:
+        """An initialized joint by name (j1..j4)."""
+        if name not in self.config.joints:
+            raise _usage(f"no joint {name!r}; the configuration has {', '.join(self.config.joints)}")
+        joint = make_joint(self.config.joints[name], self.bus)
+        joint.init()
+        return joint
+
+    def emit(self, data: Any, human: Any = None) -> None:
+        """Print `data` as JSON with --json, else `human` (a rich renderable or text) or `data`."""
+        if self.json:
+            sys.stdout.write(json.dumps(data, default=str) + "\n")
+        else:
+            self.console.print(human if human is not None else data)
+
+    def err(self, message: str) -> None:
+        Console(stderr=True, soft_wrap=True).print(message, style="red", markup=False, highlight=False)
+
+    def close(self) -> None:
+        if self._arm is not None:
+            from .arm import Lifecycle
+            if self._arm.lifecycle is not Lifecycle.FINALIZED:
+                try:
+                    self._arm.shutdown()
+                except Exception as exc:  # report, but still release the bus
+                    self.err(f"error: shutting the arm down: {exc}")
+        if self._bus is not None:
+            self._bus.close()
+
+
+def _usage(message: str) -> Exception:
+    from .errors import InvalidArgumentError
+    return InvalidArgumentError(message)
