@@ -9,6 +9,7 @@ from rich.console import Console
 from rich.table import Table
 
 from . import motion
+from .communicator import Communicator
 from .config import ArmConfig, load_config
 from .gripper import BaseGripper
 from .hardware import open_arm, open_gripper
@@ -40,7 +41,7 @@ def run(config: ArmConfig | None = None, console: Console | None = None) -> list
     config = replace(config, bus=replace(config.bus, url="sim:", use_mock_hardware=True))
     wall0 = time.perf_counter()
     arm = open_arm(config)
-    runner = motion.CycleRunner(arm, period=0.02)
+    runner = Communicator(arm, frequency=100.0)
     gripper = open_gripper(config, clock=arm.bus.monotonic)
     steps: list[Step] = []
     try:
@@ -71,6 +72,10 @@ def run(config: ArmConfig | None = None, console: Console | None = None) -> list
         arm.shutdown()
         arm.bus.close()
     console.print(_table(steps))
+    stats = runner.stats
+    console.print(f"communicator: {stats.cycles} cycles at {stats.rate:.1f} Hz (target {runner.frequency:g}), "
+                  f"jitter {stats.jitter * 1e6:.0f} us, {stats.overruns} overruns, "
+                  f"cycle {stats.duration_mean * 1e3:.2f} ms on the wire")
     console.print(f"virtual time {arm.bus.monotonic():.1f} s, wall time {time.perf_counter() - wall0:.2f} s, "
                   f"{sum(link.transactions for link in arm.bus.stats.links.values())} I2C transactions")
     return steps

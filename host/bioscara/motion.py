@@ -1,9 +1,7 @@
 """Arm-level motions built on read/write cycles: homing all joints, moving to joint targets.
 
-They take a runner with `run_until(predicate, timeout) -> None`, which keeps the arm cycling
-(read, write) until the predicate holds: `CycleRunner` below cycles in the calling thread at a
-fixed period on the bus clock (virtual time on the simulated bus); the Communicator does the same
-from its loop thread.
+They take a runner with `run_until(predicate, timeout)` that keeps the arm cycling (read, write)
+until the predicate holds: the Communicator, in the calling thread or from its loop thread.
 """
 
 from __future__ import annotations
@@ -18,27 +16,6 @@ from .joint import WaitTimeoutError
 
 class Runner(Protocol):
     def run_until(self, predicate: Callable[[], bool], timeout: float) -> None: ...
-
-
-class CycleRunner:
-    """Cycles `arm` every `period` seconds of bus time in the calling thread."""
-
-    def __init__(self, arm: Arm, period: float = 0.01) -> None:
-        self.arm = arm
-        self.period = period
-
-    def run_until(self, predicate: Callable[[], bool], timeout: float) -> None:
-        bus = self.arm.bus
-        deadline = bus.monotonic() + timeout
-        while True:
-            self.arm.read()
-            if self.arm.lifecycle is Lifecycle.ACTIVE:
-                self.arm.write()
-            if predicate():
-                return
-            if bus.monotonic() >= deadline:
-                raise WaitTimeoutError(f"not done after {timeout:g} s")
-            bus.sleep(self.period)
 
 
 def home(arm: Arm, runner: Runner, joints: Iterable[str] | None = None,
