@@ -40,6 +40,23 @@ def main() -> None:
     speed = simspeed.virtual_per_wall(lambda: time.perf_counter_ns() // 1000)
     print(f"  simulated joint turning at 60 rpm: {speed:.1f} virtual s per wall s")
 
+    import host
+    c = host.control_cycle()
+    print("host, 4-joint control cycle (2 reads + 1 position write per joint) on the simulated bus")
+    print(f"  wire: {c['bits']:.0f} bit times = {c['wire_us']:.0f} us at 400 kHz")
+    print(f"  host CPU: {c['host_us']:.0f} us per cycle = {c['fraction']:.2f} x the wire time "
+          f"(the simulator itself: {c['sim_us']:.0f} us, excluded)")
+    print("communicator, 4 joints in position mode, simulated bus")
+    for rate in (100.0, 250.0, 500.0):
+        v = host.communicator_virtual(rate)
+        print(f"  {rate:>5.0f} Hz, virtual time: achieved {v['rate']:6.1f} Hz, jitter {v['jitter_us']:5.0f} us, "
+              f"{v['overruns']:4d}/{v['cycles']} overruns, host CPU {v['host_share'] * 100:5.1f} % of bus time")
+    for rate in (100.0, 250.0, 500.0):
+        r = host.communicator_realtime(rate)
+        print(f"  {rate:>5.0f} Hz, real time ({r['scheduling']}): achieved {r['rate']:6.1f} Hz, "
+              f"jitter {r['jitter_us']:5.0f} us, {r['overruns']:4d}/{r['cycles']} overruns, "
+              f"host CPU {r['host_share'] * 100:5.1f} % (+ simulator {r['sim_share'] * 100:.0f} %)")
+
 
 if __name__ == "__main__":
     main()

@@ -23,7 +23,7 @@ def micropython_binary():
 
 @pytest.mark.parametrize("module", MODULES)
 def test_module_passes_under_micropython(module):
-    env = dict(os.environ, MICROPYPATH=f"{ROOT / 'firmware'}:{FIRMWARE_TESTS}")
+    env = dict(os.environ, MICROPYPATH=f"{ROOT / 'firmware'}:{FIRMWARE_TESTS}:{ROOT}")
     result = subprocess.run(
         [micropython_binary(), "-X", "heapsize=8M", str(FIRMWARE_TESTS / "mprun.py"), module],
         capture_output=True, text=True, env=env, timeout=600, cwd=ROOT,

@@ -8,6 +8,7 @@ the joint disabled, reporting why on the serial console, instead of crashing.
 from . import config
 from .clock import MonotonicClock
 from .core import JointController
+from .debug import DebugConsole, usb_reader
 from .i2c_target import I2CTargetAdapter
 from .log import Logger
 
@@ -53,9 +54,11 @@ def run(config_path=config.CONFIG_FILE):
         core.service()
         time.sleep_ms(1)
     join_bus(machine, core, cfg, log)
+    debug = DebugConsole(core, usb_reader(), print)
     next_ms = time.ticks_ms()
     while True:
         core.service()
+        debug.poll()
         next_ms = time.ticks_add(next_ms, 1)
         late = time.ticks_diff(time.ticks_ms(), next_ms)
         if late > 10:

@@ -79,6 +79,7 @@ class JointController:
         self.closed_loop = False
         self.stallguard = False
         self.stall = StallDetector(cfg.stall)
+        self.trace = None  # main loop: called with the detector after every stall-detection sample
         # Reply caches: bytes of every readable register, packed ahead of the read.
         self._cache = [None] * 256
         for addr in range(256):
@@ -108,7 +109,7 @@ class JointController:
         self._next_stall_ms = now
         self._stall_period_ms = int(cfg.stall.sample_time * 1000 + 0.5)
         self._task = None
-        self._task_name = None
+        self.task_name = None
         self._task_wake = now
         self._handlers = {
             SETUP: self._setup, SETRPM: self._set_rpm, MOVESTEPS: self._move_steps,
@@ -207,6 +208,10 @@ class JointController:
 
     # ---- main loop ----
 
+    def cached_reply(self, addr):
+        """The reply payload bytes the IRQ path serves for register `addr` (None: not readable)."""
+        return self._cache[addr]
+
     def service(self):
         """One main-loop iteration; call it every millisecond or faster."""
         now = self.clock.ticks_ms()
@@ -227,7 +232,7 @@ class JointController:
         """The motor backend failed (driver or encoder unreachable): disable the joint for good."""
         self.disabled = True
         self._task = None
-        self._task_name = None
+        self.task_name = None
         state = self._irq_off()
         self.flags = (self.flags | FLAG_NOTENABLED) & ~FLAG_BUSY
         self._irq_on(state)
@@ -397,7 +402,7 @@ class JointController:
 
     def _start_task(self, name, task):
         self._task = task
-        self._task_name = name
+        self.task_name = name
         self._task_wake = self.clock.ticks_ms()
 
     def _step_task(self, now):
@@ -406,7 +411,7 @@ class JointController:
             self._task_wake = self.clock.ticks_add(now, wait)
         except StopIteration:
             self._task = None
-            self._task_name = None
+            self.task_name = None
             self._clear_flags(FLAG_BUSY)
 
     def _boot(self):
@@ -500,7 +505,10 @@ class JointController:
         if not self.stallguard or self.flags & (FLAG_STALL | FLAG_BUSY):
             return
         hal = self.hal
-        if self.stall.update(hal.pid_error(), hal.encoder_rpm(), self.qd_set):
+        stalled = self.stall.update(hal.pid_error(), hal.encoder_rpm(), self.qd_set)
+        if self.trace is not None:
+            self.trace(self.stall)
+        if stalled:
             hal.stop(True)
             self._halt(FLAG_STALL)
             self.log.warn("stall detected (filtered error %.1f > threshold %.1f)"

@@ -11,6 +11,7 @@ import importlib
 import logging
 import sys
 
+from .bus import Bus
 from .commands import COMMANDS
 from .errors import BioscaraError, ConfigError
 from .session import Session
@@ -34,11 +35,12 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(argv: list[str] | None = None, *, bus: Bus | None = None) -> int:
+    """Run one command. `bus`: use this open bus instead of the config's (embedding, tests)."""
     args = build_parser().parse_args(argv)
     level = (logging.WARNING, logging.INFO, logging.DEBUG)[min(args.verbose, 2)]
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
-    session = Session(args)
+    session = Session(args, bus)
     try:
         return int(args.handler(args, session) or 0)
     except KeyboardInterrupt:

@@ -11,7 +11,6 @@ from rich.table import Table
 from . import motion
 from .communicator import Communicator
 from .config import ArmConfig, load_config
-from .gripper import BaseGripper
 from .hardware import open_arm, open_gripper
 
 # Joint targets (rad for j1, j3, j4; m for j2) and gripper widths (m) of a short pick and place.

@@ -10,23 +10,24 @@ from typing import Any
 
 from rich.console import Console
 
-from .arm import Arm
+from .arm import Arm, make_joint
 from .bus import Bus
 from .config import ArmConfig, load_config
+from .errors import InvalidArgumentError
 from .hardware import open_arm, open_arm_bus
 from .joint import Joint
-from .arm import make_joint
 
 
 class Session:
     """Lazily opens what a command needs, from `--config` and `--bus`; closes it at the end."""
 
-    def __init__(self, args: argparse.Namespace) -> None:
+    def __init__(self, args: argparse.Namespace, bus: Bus | None = None) -> None:
         self.args = args
         self.json = bool(getattr(args, "json", False))
         self.console = Console(stderr=self.json)
         self._config: ArmConfig | None = None
-        self._bus: Bus | None = None
+        self._bus = bus
+        self._owns_bus = bus is None
         self._arm: Arm | None = None
 
     @property
@@ -56,7 +57,7 @@ class Session:
     def joint(self, name: str) -> Joint:
         """An initialized joint by name (j1..j4)."""
         if name not in self.config.joints:
-            raise _usage(f"no joint {name!r}; the configuration has {', '.join(self.config.joints)}")
+            raise InvalidArgumentError(f"no joint {name!r}; the configuration has {', '.join(self.config.joints)}")
         joint = make_joint(self.config.joints[name], self.bus)
         joint.init()
         return joint
@@ -71,18 +72,15 @@ class Session:
     def err(self, message: str) -> None:
         Console(stderr=True, soft_wrap=True).print(message, style="red", markup=False, highlight=False)
 
+    def arm_of(self, names: list[str]) -> Arm:
+        """An arm made of some of the configured joints (commands act on those only)."""
+        unknown = [name for name in names if name not in self.config.joints]
+        if unknown:
+            raise InvalidArgumentError(f"no joint {', '.join(unknown)}; the configuration has {', '.join(self.config.joints)}")
+        config = replace(self.config, joints={name: self.config.joints[name] for name in names})
+        return open_arm(config, self.bus)
+
     def close(self) -> None:
-        if self._arm is not None:
-            from .arm import Lifecycle
-            if self._arm.lifecycle is not Lifecycle.FINALIZED:
-                try:
-                    self._arm.shutdown()
-                except Exception as exc:  # report, but still release the bus
-                    self.err(f"error: shutting the arm down: {exc}")
-        if self._bus is not None:
+        """Release the bus. Joints keep their state: a joint that was moved keeps holding."""
+        if self._bus is not None and self._owns_bus:
             self._bus.close()
-
-
-def _usage(message: str) -> Exception:
-    from .errors import InvalidArgumentError
-    return InvalidArgumentError(message)

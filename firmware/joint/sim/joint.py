@@ -24,6 +24,7 @@ class SimJoint:
         self.target = FakeI2CTarget(cfg.address, port)
         self.log = Logger(cfg.joint, level, write)
         self.boots = 0
+        self.connected = True  # False: the bus cable is unplugged, the address does not ACK
         self.core = None
         self.adapter = None
         self.power_cycle()
@@ -36,8 +37,8 @@ class SimJoint:
 
     @property
     def online(self):
-        """True once the firmware has joined the bus (it ACKs its address)."""
-        return self.adapter is not None
+        """True once the firmware has joined the bus (it ACKs its address) and the cable is in."""
+        return self.connected and self.adapter is not None
 
     def tick(self):
         self.core.service()

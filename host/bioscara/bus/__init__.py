@@ -2,7 +2,8 @@
 
     smbus:1              /dev/i2c-1 through smbus2 (also smbus:/dev/i2c-3)
     blinka:              Adafruit Blinka busio.I2C (any Blinka board or USB I2C adapter)
-    serial:/dev/ttyACM0  a USB MicroPython board running the HIL bridge (or the simulator's pty)
+    serial:/dev/ttyACM0  a USB MicroPython board running the HIL bridge (or the simulator's pty);
+                         options ?baud=115200&timeout=0.1 (s per attempt)
     sim:                 simulated joints running the real firmware, virtual time
 """
 
@@ -26,6 +27,11 @@ def _blinka(target: str, **kwargs: Any) -> Bus:
     return BlinkaBus(**kwargs)
 
 
+def _serial(target: str, **kwargs: Any) -> Bus:
+    from .serial import SerialBus
+    return SerialBus.from_target(target, **kwargs)
+
+
 def _sim(target: str, **kwargs: Any) -> Bus:
     from .sim import SimBus
     joints = kwargs.pop("sim_joints", None)
@@ -34,7 +40,8 @@ def _sim(target: str, **kwargs: Any) -> Bus:
     return SimBus(joints, realtime=kwargs.pop("realtime", target == "realtime"), **kwargs)
 
 
-TRANSPORTS: dict[str, Callable[..., Bus]] = {"smbus": _smbus, "blinka": _blinka, "sim": _sim}
+TRANSPORTS: dict[str, Callable[..., Bus]] = {"smbus": _smbus, "blinka": _blinka, "serial": _serial,
+                                             "sim": _sim}
 
 
 def register_transport(scheme: str, factory: Callable[..., Bus]) -> None:

@@ -11,7 +11,7 @@ import logging
 import math
 import time
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 from ..firmware import config as firmware_config
 from ..firmware.sim.bus import SimJointBus
@@ -42,6 +42,18 @@ class SimJointSpec:
         return math.degrees(self.reduction * (position - self.start))
 
 
+def build_joint(spec: SimJointSpec, clock: VirtualClock, seed: int, port: str,
+                write: Callable[[str], None]) -> SimJoint:
+    """The simulated joint of `spec`: its firmware on a stepper walled in at the joint limits,
+    logging its console lines through `write`."""
+    stepper = SimStepper(clock, seed=seed)
+    low, high = sorted((spec.motor_degrees(spec.min), spec.motor_degrees(spec.max)))
+    stepper.set_end_stops(low, high)
+    cfg = firmware_config.parse({"joint": spec.firmware_joint, "address": spec.address},
+                                f"simulated {spec.firmware_joint}")
+    return SimJoint(cfg, clock, stepper, port=port, write=write)
+
+
 class SimBus(Bus):
     scheme = "sim"
 
@@ -53,12 +65,7 @@ class SimBus(Bus):
         self.sim = SimJointBus(self.clock, bus_hz=self.speed_hz)
         self.specs = {spec.address: spec for spec in joints}
         for i, spec in enumerate(joints):
-            stepper = SimStepper(self.clock, seed=seed + i)
-            low, high = sorted((spec.motor_degrees(spec.min), spec.motor_degrees(spec.max)))
-            stepper.set_end_stops(low, high)
-            cfg = firmware_config.parse({"joint": spec.firmware_joint, "address": spec.address},
-                                        f"simulated {spec.firmware_joint}")
-            self.sim.add(SimJoint(cfg, self.clock, stepper, port=port, write=log.info))
+            self.sim.add(build_joint(spec, self.clock, seed + i, port, log.info))
         self._wall_start = time.monotonic()
         self._virtual_start = self.clock.now_us
 

@@ -1,0 +1,98 @@
+"""Host benchmarks on the simulated bus (CPython): control-cycle cost and communicator rates.
+
+The simulator runs inside the same process, so the time spent in it (the firmware and physics of
+four joints) is measured separately and subtracted: "host" is the bioscara stack alone.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+
+from bioscara import motion
+from bioscara.bus.sim import SimBus
+from bioscara.communicator import Communicator
+from bioscara.config import load_config
+from bioscara.hardware import open_arm, open_arm_bus
+
+
+class SimMeter:
+    """Accumulates the CPU time spent inside the simulator's own calls."""
+
+    def __init__(self, bus: SimBus) -> None:
+        self.seconds = 0.0
+        self._depth = 0  # transfer() calls run_until(): time only the outermost call
+        for name in ("transfer", "run_until"):
+            original = getattr(bus.sim, name)
+            setattr(bus.sim, name, self._timed(original))
+
+    def _timed(self, function):  # type: ignore[no-untyped-def]
+        def timed(*args, **kwargs):  # type: ignore[no-untyped-def]
+            self._depth += 1
+            t0 = time.process_time()
+            try:
+                return function(*args, **kwargs)
+            finally:
+                self._depth -= 1
+                if self._depth == 0:
+                    self.seconds += time.process_time() - t0
+        return timed
+
+
+def homed_arm(realtime: bool = False):  # type: ignore[no-untyped-def]
+    config = load_config()
+    config = replace(config, sim=replace(config.sim, realtime=realtime))
+    bus = open_arm_bus(config)
+    if not realtime:
+        bus.sleep(2.0)
+    else:
+        time.sleep(2.5)
+    arm = open_arm(config, bus)
+    arm.configure()
+    arm.activate()
+    motion.home(arm, Communicator(arm, 100.0, realtime_priority=None), timeout=120)
+    arm.switch_modes(start=[f"{name}/position" for name in arm.joints])
+    return arm, bus
+
+
+def control_cycle(cycles: int = 2000) -> dict[str, float]:
+    arm, bus = homed_arm()
+    meter = SimMeter(bus)
+    bits0 = bus.sim.bits
+    t0 = time.process_time()
+    for _ in range(cycles):
+        arm.read()
+        arm.write()
+    total = time.process_time() - t0
+    host = (total - meter.seconds) / cycles
+    bits = (bus.sim.bits - bits0) / cycles
+    wire = bits / bus.speed_hz
+    return {"host_us": host * 1e6, "sim_us": meter.seconds / cycles * 1e6, "bits": bits,
+            "wire_us": wire * 1e6, "fraction": host / wire}
+
+
+def communicator_virtual(rate: float, seconds: float = 5.0) -> dict[str, float]:
+    arm, bus = homed_arm()
+    meter = SimMeter(bus)
+    comm = Communicator(arm, rate, realtime_priority=None)
+    t0 = time.process_time()
+    comm.run_for(seconds)
+    cpu = time.process_time() - t0
+    s = comm.stats
+    return {"rate": s.rate, "jitter_us": s.jitter * 1e6, "overruns": s.overruns, "cycles": s.cycles,
+            "host_share": (cpu - meter.seconds) / seconds, "sim_share": meter.seconds / seconds}
+
+
+def communicator_realtime(rate: float, seconds: float = 3.0) -> dict[str, float]:
+    arm, bus = homed_arm(realtime=True)
+    meter = SimMeter(bus)
+    comm = Communicator(arm, rate)
+    t0, c0 = time.monotonic(), time.process_time()
+    comm.start()
+    time.sleep(seconds)
+    comm.stop()
+    wall, cpu = time.monotonic() - t0, time.process_time() - c0
+    s = comm.stats
+    return {"rate": s.rate, "jitter_us": s.jitter * 1e6, "overruns": s.overruns, "cycles": s.cycles,
+            "host_share": (cpu - meter.seconds) / wall, "sim_share": meter.seconds / wall,
+            "scheduling": comm.scheduling}

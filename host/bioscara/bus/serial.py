@@ -1,0 +1,249 @@
+"""The HIL bridge transport: `serial:/dev/ttyACM0`, a USB MicroPython board running hil_bridge as
+I2C controller, or the simulator server's pseudo-terminal (`bioscara sim --pty`).
+
+One request is outstanding at a time. Every attempt gets a new sequence number, and input older
+than the request is discarded before it is sent, so an answer is only ever taken for the request
+it answers; late answers to earlier attempts are counted as stale and dropped. Garbage, corrupted
+and truncated frames are skipped by the shared frame parser (counted in `link`). A port that
+disappears (the bridge was reset or unplugged) is reopened by the next transfer.
+"""
+
+from __future__ import annotations
+
+import errno
+import time
+from dataclasses import dataclass
+from typing import Any
+from urllib.parse import parse_qsl
+
+import serial
+
+from ..errors import CommError, ConfigError, InvalidArgumentError
+from ..hil_bridge import framing as F
+from ..serial_port import DEFAULT_BAUD, open_port
+from .base import Bus
+
+DEFAULT_TIMEOUT_S = 0.1  # per attempt; above the bridge's own I2C timeout (50 ms by default)
+_READ_SLICE = 4  # reads wait at most timeout/_READ_SLICE, so the deadline is kept within 25 %
+
+# Bridge status -> errno of the OSError the base class retries and reports (Linux adapters' codes).
+_STATUS_ERRNO = {F.NACK: errno.EREMOTEIO, F.TIMEOUT: errno.ETIMEDOUT, F.BUS_ERROR: errno.EIO,
+                 F.BAD_FRAME: errno.EBADMSG}
+
+
+@dataclass(frozen=True)
+class BridgeVersion:
+    protocol: int
+    firmware: tuple[int, int, int]
+    max_data: int  # bytes per transaction phase
+    i2c_hz: int  # the bridge's I2C clock
+
+
+@dataclass
+class SerialLinkStats:
+    """What crossed the serial link: requests, and every kind of trouble it survived."""
+
+    requests: int = 0
+    timeouts: int = 0  # attempts with no matching answer in time
+    stale: int = 0  # answers to an earlier attempt, dropped by sequence number
+    crc_errors: int = 0
+    bad_lengths: int = 0
+    truncated: int = 0  # frames that stopped half way
+    skipped_bytes: int = 0  # garbage between frames
+    bad_frames: int = 0  # requests the bridge could not execute
+    reconnects: int = 0
+
+    @property
+    def resyncs(self) -> int:
+        """Frames abandoned to look for the next start marker."""
+        return self.crc_errors + self.bad_lengths + self.truncated
+
+
+class SerialBus(Bus):
+    """I2C through the HIL bridge on serial port `port`; `timeout` in s per attempt."""
+
+    scheme = "serial"
+
+    def __init__(self, port: str, *, baud: int = DEFAULT_BAUD, timeout: float = DEFAULT_TIMEOUT_S,
+                 **kwargs: Any) -> None:
+        super().__init__(**kwargs)
+        if not timeout > 0:
+            raise InvalidArgumentError(f"serial timeout must be > 0 s, got {timeout}")
+        self.port = port
+        self.baud = baud
+        self.timeout = timeout
+        self._parser = F.FrameParser()
+        self._stats = SerialLinkStats()
+        self._frame = bytearray(F.MAX_FRAME)
+        self._seq = 0
+        self._serial: serial.Serial | None = open_port(port, baud=baud, timeout=timeout / _READ_SLICE)
+        try:
+            self.version = self._handshake()
+        except BaseException:
+            self._serial.close()
+            raise
+
+    @classmethod
+    def from_target(cls, target: str, **kwargs: Any) -> SerialBus:
+        """The bus for the part of a `serial:` URL after the colon: PORT[?baud=N&timeout=S]."""
+        path, _, query = target.partition("?")
+        if not path:
+            raise ConfigError("serial: needs a port, e.g. serial:/dev/ttyACM0")
+        try:
+            options = parse_qsl(query, keep_blank_values=True, strict_parsing=bool(query))
+        except ValueError:
+            raise ConfigError(f"serial: cannot read the options {query!r}; use ?baud=N&timeout=S") from None
+        for key, value in options:
+            if key not in ("baud", "timeout"):
+                raise ConfigError(f"serial: unknown option {key!r}; use baud= or timeout=")
+            try:
+                kwargs[key] = int(value) if key == "baud" else float(value)
+            except ValueError:
+                raise ConfigError(f"serial: {key}={value!r} is not a number") from None
+        return cls(path, **kwargs)
+
+    def _handshake(self) -> BridgeVersion:
+        try:
+            _, data = self._ask(F.VERSION, b"", (F.OK,))
+        except CommError as exc:
+            raise CommError(f"no HIL bridge answers on {self.port} ({exc.detail}); is the bridge "
+                            "firmware running, and is this not a joint's debug port?") from None
+        if len(data) != F.VERSION_BYTES or data[0] != F.PROTOCOL:
+            raise CommError(f"the bridge on {self.port} speaks framing protocol {data[0] if data else '?'}, "
+                            f"this host {F.PROTOCOL}: flash the bridge firmware of this release")
+        return BridgeVersion(data[0], (data[1], data[2], data[3]), data[4], int.from_bytes(data[5:9], "little"))
+
+    def _ask(self, kind: int, payload: bytes, accept: tuple[int, ...]) -> tuple[int, bytes]:
+        """A request outside the base class's retries: up to `attempts` tries for a status in `accept`."""
+        problem = ""
+        with self._lock:
+            for _ in range(self.attempts):
+                try:
+                    status, data = self._request(kind, payload)
+                except (OSError, TimeoutError) as exc:
+                    problem = str(exc)
+                    continue
+                if status in accept:
+                    return status, data
+                problem = f"the bridge answered {F.status_name(status)}"
+        raise CommError(problem)
+
+    @property
+    def link(self) -> SerialLinkStats:
+        """Link statistics, including the frame parser's counts."""
+        p = self._parser
+        s = self._stats
+        return SerialLinkStats(s.requests, s.timeouts, s.stale, p.crc_errors, p.bad_lengths,
+                               p.truncated, p.skipped, s.bad_frames, s.reconnects)
+
+    def describe(self) -> str:
+        return f"serial:{self.port}"
+
+    def close(self) -> None:
+        with self._lock:
+            if self._serial is not None:
+                self._serial.close()
+                self._serial = None
+            super().close()
+
+    # ---- transactions ----
+
+    def _transfer_once(self, addr: int, write: bytes | None, read_len: int) -> bytes:
+        self._check(addr, write, read_len)
+        if write is None:
+            status, data = self._request(F.READ, bytes((addr, read_len)))
+        else:
+            status, data = self._request(F.XFER, bytes((addr, read_len)) + write)
+        self._raise_for(status, addr)
+        return data
+
+    def _probe(self, addr: int) -> bool:
+        status, _ = self._ask(F.XFER, bytes((addr, 0)), (F.OK, F.NACK))
+        return status == F.OK
+
+    def scan(self, first: int = 0x08, last: int = 0x77) -> list[int]:
+        """Addresses that acknowledge, from one SCAN request (the bridge scans 0x08..0x77)."""
+        _, bitmap = self._ask(F.SCAN, b"", (F.OK,))
+        if len(bitmap) != F.SCAN_BYTES:
+            raise CommError(f"the bridge on {self.port} sent a {len(bitmap)}-byte SCAN answer")
+        return [a for a in range(first, last + 1) if bitmap[a >> 3] & (1 << (a & 7))]
+
+    def _check(self, addr: int, write: bytes | None, read_len: int) -> None:
+        if not 0 <= addr <= 0x7F:
+            raise InvalidArgumentError(f"I2C address 0x{addr:x} is not a 7-bit address")
+        if not 0 <= read_len <= F.MAX_DATA or write is not None and len(write) > F.MAX_DATA:
+            raise InvalidArgumentError(f"the bridge moves at most {F.MAX_DATA} bytes per phase")
+        if write is None and read_len == 0:
+            raise InvalidArgumentError("a transaction needs a write or a read phase")
+
+    def _raise_for(self, status: int, addr: int) -> None:
+        if status == F.OK:
+            return
+        if status == F.BAD_FRAME:
+            self._stats.bad_frames += 1
+        code = _STATUS_ERRNO.get(status, errno.EIO)
+        raise OSError(code, f"bridge: {F.status_name(status)} at 0x{addr:02x}")
+
+    # ---- the serial link ----
+
+    def _request(self, kind: int, payload: bytes) -> tuple[int, bytes]:
+        """Send one request, return (status, data) of its answer; TimeoutError if none comes."""
+        port = self._connected()
+        self._seq = (self._seq + 1) & 0xFF
+        frame = self._frame
+        frame[F.HEADER:F.HEADER + len(payload)] = payload
+        size = F.seal(frame, kind, self._seq, len(payload))
+        parser = self._parser
+        try:
+            port.reset_input_buffer()  # nothing received before the request can answer it
+            parser.reset()
+            port.write(frame[:size])
+        except (serial.SerialException, OSError) as exc:
+            raise self._lost(exc) from None
+        self._stats.requests += 1
+        deadline = time.monotonic() + self.timeout
+        while True:
+            try:
+                chunk = port.read(port.in_waiting or 1)
+            except (serial.SerialException, OSError) as exc:
+                raise self._lost(exc) from None
+            if not chunk and parser.partial:
+                parser.expire()  # a silent stretch inside a frame: it was truncated
+            answer = self._answer_in(chunk, kind | F.RESPONSE)
+            if answer is not None:
+                return answer
+            if time.monotonic() >= deadline:
+                self._stats.timeouts += 1
+                raise TimeoutError(f"no answer from the bridge within {self.timeout * 1000:.0f} ms")
+
+    def _answer_in(self, chunk: bytes, kind: int) -> tuple[int, bytes] | None:
+        """Feed `chunk` to the parser; (status, data) of the answer to the current request, if any."""
+        parser = self._parser
+        pos = 0
+        while True:
+            pos = parser.feed(chunk, pos)
+            if not parser.ready:
+                return None
+            buf = parser.buf
+            match = parser.kind == kind and parser.seq == self._seq and parser.payload_len >= 1
+            answer = (buf[F.HEADER], bytes(buf[F.HEADER + 1:parser.size - 2]))
+            parser.release()
+            if match:
+                return answer
+            self._stats.stale += 1
+
+    def _connected(self) -> serial.Serial:
+        if self._serial is None:
+            self._serial = open_port(self.port, baud=self.baud, timeout=self.timeout / _READ_SLICE)
+            self._stats.reconnects += 1
+        return self._serial
+
+    def _lost(self, exc: Exception) -> OSError:
+        """The port failed (unplugged, reset): close it so the next attempt reopens it."""
+        if self._serial is not None:
+            try:
+                self._serial.close()
+            except (serial.SerialException, OSError):
+                pass
+            self._serial = None
+        return OSError(errno.EIO, f"serial port {self.port} failed: {exc}")

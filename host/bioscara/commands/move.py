@@ -1,0 +1,36 @@
+"""`bioscara move JOINT VALUE`: a position move in joint units, within the joint's limits."""
+
+from __future__ import annotations
+
+import argparse
+
+from .. import motion
+from ..communicator import Communicator
+from ..errors import InvalidArgumentError, NotHomedError
+from ..session import Session
+
+NAME = "move"
+HELP = "move a homed joint to a position (rad, or m for j2); the joint keeps holding afterwards"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("joint", help="j1..j4")
+    parser.add_argument("value", type=float, help="target position in joint units (rad or m)")
+    parser.add_argument("--tolerance", type=float, default=1e-3, help="joint units (default 0.001)")
+    parser.add_argument("--timeout", type=float, default=60.0, help="seconds (default 60)")
+
+
+def run(args: argparse.Namespace, session: Session) -> int:
+    arm = session.arm_of([args.joint])
+    jc = arm[args.joint].config
+    if not jc.min <= args.value <= jc.max:
+        raise InvalidArgumentError(f"{args.value} is outside the limits [{jc.min}, {jc.max}]", joint=args.joint)
+    arm.configure()
+    if not arm[args.joint].joint.is_homed():
+        raise NotHomedError(f"not homed: run `bioscara home {args.joint}` first", joint=args.joint)
+    arm.activate()
+    comm = Communicator(arm, frequency=50.0)
+    final = motion.move_to(arm, comm, {args.joint: args.value}, args.tolerance, args.timeout)
+    session.emit({"joint": args.joint, "target": args.value, "position": final[args.joint]},
+                 f"{args.joint} at {final[args.joint]:+.5f} (target {args.value:+.5f})")
+    return 0

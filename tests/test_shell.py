@@ -1,0 +1,303 @@
+"""`bioscara shell`: the console interpreter on the simulated bus, in virtual time where it can be.
+
+What a command sends is observed on the wire (the conftest Recorder wraps the bus transfer) and in
+the simulated joint's own firmware flags.
+"""
+
+from __future__ import annotations
+
+import io
+import struct
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from bioscara.arm import Arm, Lifecycle
+from bioscara.bus.sim import SimBus
+from bioscara.cli import main
+from bioscara.commands.shell import Context, _completer, interactive
+from bioscara.config import ArmConfig
+from bioscara.firmware import protocol as P
+from bioscara.shell import Shell
+
+from conftest import Recorder
+
+J1 = 0x11
+
+
+class Console:
+    """A shell with its output and error lines collected."""
+
+    def __init__(self, config: ArmConfig, bus: SimBus, arm: Arm, **options: object) -> None:
+        self.out: list[str] = []
+        self.err: list[str] = []
+        self.shell = Shell(Context(config, bus, arm), self.out.append, self.err.append, priority=None,
+                           **options)  # type: ignore[arg-type]
+
+    def ok(self, *lines: str) -> None:
+        for line in lines:
+            assert self.shell.execute(line), (line, self.err)
+
+    def fails(self, line: str) -> str:
+        """Run a line that must fail; its one error line."""
+        before = len(self.err)
+        assert not self.shell.execute(line), line
+        assert len(self.err) == before + 1, self.err[before:]
+        return self.err[-1]
+
+
+@pytest.fixture
+def console(config: ArmConfig, bus: SimBus, arm: Arm) -> Console:
+    return Console(config, bus, arm)
+
+
+@pytest.fixture
+def expert(config: ArmConfig, bus: SimBus, arm: Arm) -> Console:
+    return Console(config, bus, arm, expert=True)
+
+
+def test_a_script_reads_and_writes_exactly_these_frames(expert: Console, recorder: Recorder, bus: SimBus) -> None:
+    script = ["# raw access to j1, before the arm is configured",
+              "read j1 PING",
+              "read j1 ANGLEMOVED",
+              "write j1 SETUP 30 20 0 0",
+              "write j1 SETRPM 12.5",
+              "write j1 SETCURRENT 0"]
+    assert expert.shell.run_lines(script, "test")
+    assert recorder.frames == [
+        (J1, bytes([P.PING]), 2),  # opening the joint: one PING
+        (J1, bytes([P.PING]), 2),
+        (J1, bytes([P.ANGLEMOVED]), 5),
+        (J1, bytes([P.SETUP, 30, 20, 0, 0]), 1),
+        (J1, bytes([P.SETRPM]) + struct.pack("<f", 12.5), 1),
+        (J1, bytes([P.SETCURRENT, 0]), 1),
+    ]
+    assert bus.joint(J1).core.flags & P.FLAG_NOTENABLED, "SETCURRENT 0 disabled the joint"
+    assert "j1 PING: ack = 'O'  [NOTHOMED|NOTENABLED]" in expert.out
+    assert any(line.startswith("j1 ANGLEMOVED: angle = ") and "[deg (motor)]" in line for line in expert.out)
+    assert "j1 SETUP 30 20 0 0: accepted  [NOTHOMED]" in expert.out
+    assert "j1 SETCURRENT 0: accepted  [NOTHOMED|NOTENABLED]" in expert.out
+
+
+def test_read_all_and_lifecycle_use_the_arms_joints(console: Console, recorder: Recorder, arm: Arm) -> None:
+    console.ok("configure", "read all IDENTITY")
+    assert arm.lifecycle is Lifecycle.INACTIVE
+    for address in (0x11, 0x12, 0x13, 0x14):
+        # configure's PING, then IDENTITY through the arm's own (open) joint: no second PING
+        assert recorder.to(address) == [bytes([P.PING]), bytes([P.IDENTITY])]
+    assert sum("(same spec as this host)" in line for line in console.out) == 4
+    console.ok("activate")
+    assert arm.lifecycle is Lifecycle.ACTIVE
+    recorder.clear()
+    console.ok("deactivate", "cleanup")
+    assert arm.lifecycle is Lifecycle.UNCONFIGURED
+    assert recorder.to(J1) == [bytes([P.STOP, 0]), bytes([P.SETHOLDCURRENT, 0]), bytes([P.SETCURRENT, 0]),
+                               bytes([P.SETBRAKEMODE, 0])]
+    assert "cannot activate while unconfigured" in console.fails("activate")
+
+
+def test_raw_write_is_refused_without_expert_and_nothing_is_sent(console: Console, recorder: Recorder) -> None:
+    error = console.fails("write j1 SETCURRENT 0")
+    assert "refused" in error and "bioscara shell --expert" in error
+    assert recorder.frames == []
+
+
+@pytest.mark.parametrize("line, message", [
+    ("write j9 SETCURRENT 0", "no joint 'j9'; the arm has j1, j2, j3, j4 (or all)"),
+    ("read J5 PING", "no joint 'j5'"),
+    ("write j1 SETCURENT 0", "no register 'SETCURENT' (did you mean SETCURRENT?)"),
+    ("read j1 NOSUCH", "no register 'NOSUCH'"),
+    ("write j1 SETCURRENT 101", "SETCURRENT.drive_current = 101 is outside the valid range (0..100)"),
+    ("write j1 SETCURRENT 300", "SETCURRENT.drive_current = 300 is outside the valid range (0..100)"),
+    ("write j1 SETCURRENT 1.5", "SETCURRENT.drive_current must be an integer, got '1.5'"),
+    ("write j1 SETRPM fast", "SETRPM.rpm must be a number, got 'fast'"),
+    ("write j1 SETRPM nan", "SETRPM.rpm = nan is outside the valid range (finite, |value| in [0, 5000])"),
+    ("write j1 SETRPM 6000", "SETRPM.rpm = 6000.0 is outside the valid range"),
+    ("write j1 MOVESTEPS 3000000000", "MOVESTEPS.steps = 3000000000 does not fit a signed 32-bit integer"),
+    ("write j1 SETUP 20", "SETUP takes 4 values (drive_current hold_current reserved reserved), got 1"),
+    ("write j1 STOP 1", "STOP.reserved = 1 is outside the valid range (0..0)"),
+    ("write j1 ANGLEMOVED 0", "ANGLEMOVED cannot be written"),
+    ("read j1 SETCURRENT", "SETCURRENT cannot be read"),
+    ("read j1 ENABLEPID", "ENABLEPID is declared by the original protocol but not implemented"),
+    ("write j1", "usage: write JOINT|all REGISTER VALUE..."),
+    ("reed j1 PING", "unknown command 'reed' (did you mean read?)"),
+    ("read j1 'PING", "No closing quotation"),
+])
+def test_bad_commands_say_why_and_send_nothing(expert: Console, recorder: Recorder, line: str,
+                                               message: str) -> None:
+    error = expert.fails(line)
+    assert error.startswith("error: ") and message in error
+    assert recorder.frames == []
+
+
+def test_a_rejected_frame_reports_the_joints_reason(expert: Console, bus: SimBus) -> None:
+    expert.ok("write j1 SETUP 20 20 0 0", "write j1 HOME 0 10 30 20")
+    error = expert.fails("write j1 HOME 0 10 30 20")  # a second blocking command while the first runs
+    assert "the joint rejected HOME: a blocking command is already running" in error
+    expert.ok("read j1 LASTERROR")
+    assert "reason = 5 (a blocking command is already running), register = 45 (HOME), count = 1" in expert.out[-1]
+
+
+def test_run_stops_at_the_failing_line_and_names_it(console: Console, arm: Arm, tmp_path: Path) -> None:
+    script = tmp_path / "bring-up.txt"
+    script.write_text("# bring the arm up\n\nread j1 PING  # liveness\nread j1 NOSUCH\nconfigure\n")
+    error = console.fails(f"run {script}")
+    assert error == f"{script}:4: error: no register 'NOSUCH'; `regs` lists them"
+    assert arm.lifecycle is Lifecycle.UNCONFIGURED, "nothing after the failing line ran"
+    assert console.out[:2] == ["> read j1 PING  # liveness", "j1 PING: ack = 'O'  [NOTHOMED|NOTENABLED]"]
+
+    assert not console.shell.execute(f"run --keep-going {script}")
+    assert arm.lifecycle is Lifecycle.INACTIVE, "--keep-going ran the rest"
+
+    script.write_text(f"run {script}\n")
+    assert "is already running" in console.fails(f"run {script}")
+    assert "No such file" in console.fails(f"run {tmp_path / 'missing.txt'}")
+
+
+def test_quit_ends_a_script(console: Console, arm: Arm) -> None:
+    assert console.shell.run_lines(["quit", "configure"], "test")
+    assert console.shell.done and arm.lifecycle is Lifecycle.UNCONFIGURED
+
+
+def test_start_stop_restart_the_communicator(console: Console) -> None:
+    shell = console.shell
+    console.ok("start 50")
+    assert shell.communicator.running and shell.communicator.frequency == 50
+    assert shell.prompt() == "bioscara[unconfigured @50Hz]> "
+    _wait_for(lambda: shell.communicator.stats.cycles >= 3)
+    assert "running at 50 Hz; `stop` it to change the rate" in console.fails("start 100")
+    console.ok("start")
+    assert console.out[-1] == "communicator already running at 50 Hz"
+    cycles = shell.communicator.stats.cycles
+    console.ok("restart")
+    assert shell.communicator.running
+    _wait_for(lambda: shell.communicator.stats.cycles > cycles)
+    console.ok("stop")
+    assert not shell.communicator.running
+    cycles, shown = shell.communicator.stats.cycles, len(console.out)
+    console.ok("stats")
+    assert shell.communicator.stats.cycles == cycles, "stopped: no more cycles"
+    stats = console.out[shown:]
+    assert stats[0] == "communicator stopped, target 50 Hz, scheduling: normal"
+    assert stats[1].startswith(f"  {cycles} cycles, rate ") and "jitter" in stats[1] and "overruns" in stats[1]
+    assert stats[2].startswith("  cycle duration mean ")
+    assert stats[3] == "link health, bus sim:"
+    assert stats[4].split() == ["joint", "addr", "transactions", "failed", "attempts", "lost", "last", "error"]
+    assert [row.split()[:2] for row in stats[5:]] == [["j1", "0x11"], ["j2", "0x12"], ["j3", "0x13"], ["j4", "0x14"]]
+    console.ok("stop")
+    assert console.out[-1] == "communicator already stopped"
+    console.ok("start 200")
+    assert shell.communicator.frequency == 200 and shell.communicator.stats.cycles < cycles + 50
+    console.ok("stop")
+    assert "frequency must be in (0, 10000] Hz" in console.fails("start 0")
+
+
+def test_home_and_move_a_joint_through_modes_in_virtual_time(console: Console, bus: SimBus, arm: Arm) -> None:
+    console.ok("configure", "activate")
+    assert "cannot start position mode before homing" in console.fails("mode j4 position")
+    console.ok("mode j4 home", "set j4 home 1", "wait 5", "mode j4")
+    assert arm["j4"].state.home == 1.0 and arm["j4"].command.home == 0.0
+    assert console.out[-1] == "j4: home"
+    console.ok("mode j4 position", "set j4 position 1.0", "wait 3", "state")
+    assert abs(bus.joint_position(0x14) - 1.0) < 0.01
+    j4 = next(line for line in console.out if line.startswith("j4 ") and "position" in line).split()
+    assert j4[1:3] == ["-", "position"] and abs(float(j4[3]) - 1.0) < 0.002 and j4[4] == "rad"
+    console.ok("set j3 velocity 0.5")
+    assert console.out[-1] == "j3: velocity command 0.5 (not in velocity mode: j3)"
+    assert "position 5 is outside [-3.01069, 3.01069]" in console.fails("set j4 position 5")
+    assert "|velocity| 20 exceeds max_velocity 10" in console.fails("set j4 velocity -20")
+    assert "home takes +1, -1" in console.fails("set j4 home 2")
+    assert "no command mode 'speed'" in console.fails("set j4 speed 1")
+    console.ok("mode all off")
+    assert all(not aj.modes for aj in arm.joints.values())
+
+
+def test_a_fault_in_the_cycle_fails_the_command_that_saw_it(console: Console, bus: SimBus, arm: Arm) -> None:
+    console.ok("configure", "activate", "wait 0.05")
+    bus.joint(0x12).power_cycle()  # j2 reboots: it stops answering for its boot time
+    error = console.fails("wait 0.05")
+    assert "arm fault, joints disabled (arm inactive)" in error and "0x12" in error
+    console.ok("state")  # reported once
+    assert any(line.startswith("fault: ") for line in console.out)
+
+
+def test_completion_candidates(console: Console, tmp_path: Path) -> None:
+    complete = console.shell.complete
+    assert complete("re") == ["restart", "read", "regs"]
+    assert complete("ex") == ["exit"]
+    assert complete("read ") == ["j1", "j2", "j3", "j4", "all"]
+    assert complete("read j1 ang") == ["ANGLEMOVED"]
+    assert complete("read j1 SET") == [], "nothing readable starts with SET"
+    assert complete("write all setc") == ["SETCURRENT"]
+    assert complete("write j1 SETCURRENT ") == []
+    assert complete("mode j2 ") == ["position", "velocity", "home", "off"]
+    assert complete("set j2 v") == ["velocity"]
+    assert complete("help wr") == ["write"]
+    assert complete("stats ") == []
+    (tmp_path / "lift.txt").write_text("")
+    (tmp_path / "lib").mkdir()
+    assert complete(f"run {tmp_path}/li") == [f"{tmp_path}/lib/", f"{tmp_path}/lift.txt"]
+    assert complete(f"run --keep-going {tmp_path}/lif") == [f"{tmp_path}/lift.txt"]
+
+
+def test_help_and_regs(console: Console) -> None:
+    console.ok("help")
+    assert any(line.startswith("write JOINT|all REGISTER VALUE...") for line in console.out)
+    console.ok("help write")
+    assert console.out[-4].startswith("write JOINT|all REGISTER VALUE...: write a raw register frame")
+    console.ok("regs")
+    assert "0x19  SETCURRENT           W    write: drive_current u8 0..100 [%]" in console.out
+    assert any(line.startswith("0x2e  HOMEOFFSET") and " RW " in line for line in console.out)
+    console.ok("regs home")
+    assert console.out[-2:] == ["  blocking: runs in the firmware main loop holding BUSY",
+                                "  sets BUSY|NOTHOMED when accepted"]
+
+
+def test_interactive_line_editing_history_and_ctrl_c(console: Console, arm: Arm, tmp_path: Path) -> None:
+    from prompt_toolkit.input import create_pipe_input
+    from prompt_toolkit.output import DummyOutput
+
+    history = tmp_path / "state" / "shell_history"
+    with create_pipe_input() as keys:
+        # An edited line (backspace), a half-typed configure dropped by Ctrl-C, then Ctrl-D leaves.
+        keys.send_text("read j1 PINX\x7fG\r" "configure\x03" "\x04")
+        assert interactive(console.shell, history, input=keys, output=DummyOutput()) == 0
+    assert console.out == ["j1 PING: ack = 'O'  [NOTHOMED|NOTENABLED]"] and console.err == []
+    assert arm.lifecycle is Lifecycle.UNCONFIGURED
+    assert "+read j1 PING" in history.read_text().splitlines()
+    assert "configure" not in history.read_text()
+
+
+def test_the_line_editors_completer_replaces_the_word_being_typed(console: Console) -> None:
+    from prompt_toolkit.completion import CompleteEvent
+    from prompt_toolkit.document import Document
+
+    completions = list(_completer(console.shell).get_completions(Document("read j1 angle"), CompleteEvent()))
+    assert [(c.text, c.start_position) for c in completions] == [("ANGLEMOVED", -5)]
+    completions = list(_completer(console.shell).get_completions(Document("mode "), CompleteEvent()))
+    assert [(c.text, c.start_position) for c in completions] == [(j, 0) for j in ("j1", "j2", "j3", "j4", "all")]
+
+
+def test_cli_script_and_piped_stdin_exit_codes(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                               monkeypatch: pytest.MonkeyPatch) -> None:
+    good = tmp_path / "good.txt"
+    good.write_text("read j1 PING\nconfigure\nstate\n")
+    assert main(["shell", "--script", str(good)]) == 0
+    assert "arm inactive" in capsys.readouterr().out
+    bad = tmp_path / "bad.txt"
+    bad.write_text("read j1 PING\nwrite j1 SETCURRENT 0\nconfigure\n")
+    assert main(["shell", "--script", str(bad)]) == 1
+    captured = capsys.readouterr()
+    assert f"{bad}:2: error: raw register writes" in captured.err and "arm inactive" not in captured.out
+    monkeypatch.setattr(sys, "stdin", io.StringIO("write j1 SETCURRENT 0\nread j1 PING\n"))
+    assert main(["shell", "--expert"]) == 0
+    assert "j1 SETCURRENT 0: accepted" in capsys.readouterr().out
+
+
+def _wait_for(condition: object, timeout: float = 5.0) -> None:
+    deadline = time.monotonic() + timeout
+    while not condition():  # type: ignore[operator]
+        assert time.monotonic() < deadline, "timed out"
+        time.sleep(0.001)
