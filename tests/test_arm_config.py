@@ -334,3 +334,16 @@ def test_every_problem_is_listed(tmp_path: Path) -> None:
         f"{path}: gripper.init_pos is missing (a number)",
     ])
     assert all(line.startswith(f"{path}: ") for line in lines)
+
+
+def test_values_the_joint_would_refuse_are_caught_at_load_time(tmp_path) -> None:
+    base = resources.files("bioscara").joinpath("data/default.toml").read_text()
+    bad = (base.replace("speed = 0.03", "speed = 0.0001", 1)
+               .replace("max_velocity = 1.0 ", "max_velocity = 1e9 ", 1))
+    path = tmp_path / "arm.toml"
+    path.write_text(bad)
+    with pytest.raises(ConfigError) as err:
+        load_config(path)
+    text = str(err.value)
+    assert "joints.j1.homing.speed = 0.0001 is 0.0334 motor RPM" in text and "1..250 RPM" in text
+    assert "joints.j1.max_velocity = 1000000000.0" in text and "0.001..1e6" in text

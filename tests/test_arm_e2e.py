@@ -3,17 +3,16 @@
 from __future__ import annotations
 
 import math
-import struct
 from dataclasses import replace
 
 import pytest
 
 from bioscara import motion
-from bioscara.arm import Arm, Lifecycle
+from bioscara.arm import Arm, Lifecycle, Mode
 from bioscara.bus.sim import SimBus
 from bioscara.communicator import Communicator
 from bioscara.config import ArmConfig
-from bioscara.errors import CommError, NotHomedError, StalledError
+from bioscara.errors import CommError, NotEnabledError, NotHomedError, StalledError
 from bioscara.firmware import protocol as P
 from bioscara.gripper import MockGripper
 from bioscara.hardware import open_arm_bus, sim_joint_specs
@@ -81,8 +80,9 @@ def test_a_stall_during_a_move_disables_the_joints(arm: Arm, comm: Communicator,
     comm.run_for(1.0)
     stepper = bus.joint(0x11).stepper
     stepper.add_obstacle(stepper.rotor_angle() + 60.0, 1)
-    comm.run_until(lambda: arm.fault is not None, timeout=3)
-    assert isinstance(arm.fault, StalledError) and arm.fault.joint == "j1"
+    with pytest.raises(StalledError) as stall:
+        comm.run_until(lambda: False, timeout=3)
+    assert stall.value.joint == "j1" and arm.fault is stall.value
     assert arm.lifecycle is Lifecycle.INACTIVE, "the arm deactivated itself"
     comm.run_for(0.1)
     assert all(not aj.joint.is_enabled() for aj in arm.joints.values()), "every joint is disabled"
@@ -110,7 +110,7 @@ def test_releasing_velocity_mode_while_turning_commands_zero(arm: Arm, comm: Com
     comm.run_for(1.0)
     recorder.clear()
     arm.switch_modes(stop=["j3/velocity"])
-    assert recorder.to(0x13) == [bytes([P.SETRPM]) + struct.pack("<f", 0.0)]
+    assert recorder.to(0x13) == [bytes([P.STOP, 0])], "0 RPM, without guards that could refuse it"
     comm.run_for(1.0)
     assert abs(arm["j3"].state.velocity) < 1e-3, "the joint stopped although reads continue"
 
@@ -121,7 +121,8 @@ def test_a_joint_reboot_is_detected_and_motion_refused_until_rehomed(arm: Arm, c
     arm.switch_modes(start=["j2/position"])
     comm.run_for(0.2)
     bus.joint(0x12).power_cycle()
-    comm.run_until(lambda: arm.fault is not None, timeout=2)
+    with pytest.raises(CommError):  # it ignores its address while it boots
+        comm.run_until(lambda: False, timeout=2)
     assert arm.lifecycle is Lifecycle.INACTIVE
     arm.recover()
     bus.sleep(2.0)
@@ -155,3 +156,102 @@ def test_mock_hardware_means_the_simulated_bus(config: ArmConfig) -> None:
     bus = open_arm_bus(mock)
     assert isinstance(bus, SimBus)
     bus.close()
+
+
+def test_a_fault_during_homing_is_raised_at_once_with_its_cause(arm: Arm, comm: Communicator,
+                                                                  bus: SimBus) -> None:
+    arm.configure()
+    arm.activate()
+    bus.joint(0x12).connected = False
+    t0 = bus.monotonic()
+    with pytest.raises(CommError, match="0x12"):
+        motion.home(arm, comm, timeout=300)
+    assert bus.monotonic() - t0 < 1.0, "not after the 300 s timeout"
+    assert arm.lifecycle is Lifecycle.INACTIVE
+
+
+def test_a_failed_activation_leaves_no_joint_energized(arm: Arm, bus: SimBus) -> None:
+    arm.configure()
+    original = bus._transfer_once
+
+    def refuse_j3_stall_guard(addr: int, write: bytes | None, read_len: int) -> bytes:
+        if addr == 0x13 and write and write[0] == P.ENABLESTALLGUARD:
+            raise OSError(121, "NACK")
+        return original(addr, write, read_len)
+    bus._transfer_once = refuse_j3_stall_guard  # type: ignore[method-assign]
+    with pytest.raises(CommError):
+        arm.activate()
+    assert arm.lifecycle is Lifecycle.INACTIVE
+    for address in (0x11, 0x12, 0x13):
+        assert bus.joint(address).core.flags & P.FLAG_NOTENABLED, hex(address)
+
+
+def test_releasing_velocity_mode_works_on_a_joint_already_disabled(arm: Arm, comm: Communicator,
+                                                                   bus: SimBus) -> None:
+    _home_all(arm, comm)
+    arm.switch_modes(start=["j1/velocity"])
+    arm.set_command("j1", "velocity", 0.1)
+    comm.run_for(0.5)
+    arm["j1"].joint.set_drive_current(0)  # the joint is disabled behind the arm's back
+    arm.switch_modes(start=["j1/position"], stop=["j1/velocity"])
+    assert arm["j1"].modes == {Mode.POSITION}
+
+
+def test_a_homing_cut_short_by_a_fault_does_not_return_after_recovery(arm: Arm, comm: Communicator,
+                                                                      bus: SimBus) -> None:
+    arm.configure()
+    arm.activate()
+    arm.switch_modes(start=["j4/home"])
+    arm.set_command("j4", "home", -1)  # toward the far end stop: still homing when the fault comes
+    comm.run_for(0.2)
+    bus.joint(0x11).connected = False
+    with pytest.raises(CommError):
+        comm.run_until(lambda: False, timeout=1)
+    bus.joint(0x11).connected = True
+    arm.recover()
+    arm.configure()
+    arm.activate()
+    comm.run_for(0.2)
+    assert arm.lifecycle is Lifecycle.ACTIVE
+    assert not bus.joint(0x14).core.flags & P.FLAG_NOTENABLED, "j4 stays enabled"
+
+
+def test_flags_survive_a_failed_transfer(arm: Arm, bus: SimBus) -> None:
+    arm.configure()
+    joint = arm["j1"].joint
+    joint.enable(20, 20)
+    assert joint.flags == P.FLAG_NOTHOMED
+    bus.joint(0x11).connected = False
+    with pytest.raises(CommError):
+        joint.stop()
+    assert joint.flags == P.FLAG_NOTHOMED, "flags only come from successful transfers"
+
+
+def test_a_reboot_between_cycles_is_seen_as_not_homed(arm: Arm, comm: Communicator, bus: SimBus) -> None:
+    _home_all(arm, comm)
+    arm.switch_modes(start=["j2/position"])
+    comm.run_for(0.2)
+    bus.joint(0x12).power_cycle()
+    bus.sleep(1.0)  # a brown-out: back on the bus before the host's next cycle
+    with pytest.raises(NotEnabledError):  # the original's guard order: enabled, then homed
+        comm.run_until(lambda: False, timeout=1)
+    assert arm["j2"].state.home == 0.0, "the cycle's read saw NOTHOMED"
+    assert arm.lifecycle is Lifecycle.INACTIVE
+
+
+def test_a_collision_during_a_position_move_stops_the_arm(config: ArmConfig) -> None:
+    slow = replace(config.joints["j1"], max_velocity=0.36)  # 120 motor RPM, see the README on stalls
+    config = replace(config, joints={**config.joints, "j1": slow})
+    bus = open_arm_bus(config)
+    bus.run_for(2.0)
+    arm = Arm(config, bus)
+    comm = Communicator(arm, frequency=100.0, realtime_priority=None)
+    _home_all(arm, comm)
+    arm.switch_modes(start=["j1/position"])
+    arm.set_command("j1", "position", 0.0)
+    comm.run_for(1.5)
+    stepper = bus.joint(0x11).stepper
+    stepper.add_obstacle(stepper.rotor_angle() + 30.0, 1)
+    with pytest.raises(StalledError):
+        comm.run_until(lambda: False, timeout=3)
+    assert all(not aj.joint.is_enabled() for aj in arm.joints.values())

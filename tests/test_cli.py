@@ -101,3 +101,72 @@ def test_errors_are_one_line_and_non_zero(capsys: pytest.CaptureFixture[str], tm
     assert code == 1 and "cannot open /dev/i2c-99" in err and "Traceback" not in err
     code, _, err = run(capsys, "scan", "--bus", "carrier-pigeon:")
     assert code == 2 and "unknown bus 'carrier-pigeon:'" in err
+
+
+def test_a_moved_joint_keeps_holding_after_the_command_exits(capsys: pytest.CaptureFixture[str],
+                                                             bus: SimBus) -> None:
+    run(capsys, "home", "j3", bus=bus)
+    assert run(capsys, "move", "j3", "1.25", bus=bus)[0] == 0
+    bus.sleep(1.0)  # nobody talks to the joint any more
+    assert not bus.joint(0x13).core.flags & 0x08, "still enabled: the deadman had nothing to stop"
+    assert abs(bus.joint_position(0x13) - 1.25) < 0.005
+
+
+def test_ctrl_c_while_homing_sends_stop(capsys: pytest.CaptureFixture[str], bus: SimBus,
+                                        monkeypatch: pytest.MonkeyPatch) -> None:
+    from bioscara.communicator import Communicator
+    from conftest import Recorder
+    recorder = Recorder(bus)
+    cycle = Communicator.cycle
+
+    def interrupted(self: Communicator):  # type: ignore[no-untyped-def]
+        if self.stats.cycles == 30:
+            raise KeyboardInterrupt
+        return cycle(self)
+    monkeypatch.setattr(Communicator, "cycle", interrupted)
+    code, _, err = run(capsys, "home", "j1", bus=bus)
+    assert code == 130 and "interrupted" in err
+    sent = recorder.to(0x11)
+    assert bytes([0x2D]) == sent[[w[:1] for w in sent].index(bytes([0x2D]))][:1], "homing had started"
+    assert bytes([0x29, 0]) in sent[[w[:1] for w in sent].index(bytes([0x2D])):], "then STOP"
+    assert bus.joint(0x11).core.task_name is None, "the firmware aborted the homing"
+
+
+def test_bad_rates_are_one_line_errors_and_touch_nothing(capsys: pytest.CaptureFixture[str],
+                                                        bus: SimBus) -> None:
+    for argv in (("monitor", "--rate", "0"), ("home", "j1", "--rate", "0"), ("monitor", "--rate", "20000")):
+        code, out, err = run(capsys, *argv, bus=bus)
+        assert code == 1 and "cycle rate must be in (0, 10000] Hz" in err and "Traceback" not in err + out
+    assert all(bus.joint(a).core.flags & 0x08 for a in (0x11, 0x12, 0x13, 0x14)), "nothing was enabled"
+
+
+def test_disable_carries_on_past_a_missing_joint(capsys: pytest.CaptureFixture[str], bus: SimBus) -> None:
+    run(capsys, "enable", bus=bus)
+    bus.joint(0x11).connected = False
+    code, out, _ = run(capsys, "disable", "--json", bus=bus)
+    results = {d["joint"]: d["result"] for d in json.loads(out)}
+    assert code == 1 and results["j1"].startswith("FAILED") and results["j4"].startswith("disabled")
+    assert all(bus.joint(a).core.flags & 0x08 for a in (0x12, 0x13, 0x14))
+
+
+def test_monitor_carries_on_when_a_joint_goes_missing(capsys: pytest.CaptureFixture[str], bus: SimBus,
+                                                      monkeypatch: pytest.MonkeyPatch) -> None:
+    from bioscara.arm import Arm
+    configure = Arm.configure
+
+    def configure_then_unplug_j1(self: Arm) -> None:
+        configure(self)
+        bus.joint(0x11).connected = False
+    monkeypatch.setattr(Arm, "configure", configure_then_unplug_j1)
+    code, out, _ = run(capsys, "monitor", "--samples", "5", "--json", bus=bus)
+    summary = json.loads(out)
+    assert code == 1 and summary["samples"] == 5 and summary["errors"] == 5
+
+
+def test_plot_refuses_what_is_not_a_recording(capsys: pytest.CaptureFixture[str], tmp_path) -> None:
+    for name, text in (("a.jsonl", '{"meta": {"bus": "sim:"}}\n'), ("b.jsonl", '{"meta": {"joints": ["j1"], '
+                       '"bus": "sim:", "spec_hash": "0", "rate_hz": 1}}\n[1, 2]\n'), ("c.csv", "time,cycle\n1,2\n")):
+        path = tmp_path / name
+        path.write_text(text)
+        code, out, err = run(capsys, "plot", str(path))
+        assert code == 1 and "not a bioscara recording" in err and "Traceback" not in err + out

@@ -74,7 +74,7 @@ def test_link_health_counts_failures_per_joint(arm: Arm, bus: SimBus) -> None:
     comm.run_for(0.1)
     joint = bus.joint(0x12)
     joint.connected = False  # j2's cable comes off
-    comm.run_for(0.05)
+    comm.run_for(0.05, stop_on_fault=False)
     health = comm.link_health()
     assert health["j2"]["comm_errors"] >= 1 and "NACK" in str(health["j2"]["last_error"])
     assert health["j1"]["comm_errors"] == 0 and health["j1"]["transactions"] > 0
@@ -113,3 +113,16 @@ def test_bad_frequencies_are_refused(arm: Arm) -> None:
     for frequency in (0.0, -5.0, 1e6):
         with pytest.raises(ValueError):
             Communicator(arm, frequency=frequency)
+
+
+def test_a_restart_does_not_count_the_pause_as_a_period(arm: Arm) -> None:
+    arm.configure()
+    comm = Communicator(arm, frequency=200.0, realtime_priority=None)
+    comm.start()
+    comm.run_until(lambda: comm.stats.cycles >= 20, timeout=30.0)
+    comm.stop()
+    time.sleep(0.3)
+    comm.start()
+    comm.run_until(lambda: comm.stats.cycles >= 40, timeout=30.0)
+    comm.stop()
+    assert comm.stats.period_max < 0.25, "the 0.3 s pause is not a cycle period"

@@ -191,7 +191,7 @@ def test_start_stop_restart_the_communicator(console: Console) -> None:
     console.ok("start 200")
     assert shell.communicator.frequency == 200 and shell.communicator.stats.cycles < cycles + 50
     console.ok("stop")
-    assert "frequency must be in (0, 10000] Hz" in console.fails("start 0")
+    assert "cycle rate must be in (0, 10000] Hz" in console.fails("start 0")
 
 
 def test_home_and_move_a_joint_through_modes_in_virtual_time(console: Console, bus: SimBus, arm: Arm) -> None:

@@ -40,9 +40,14 @@ def join_bus(machine, core, cfg, log):
     if cfg.address is None:
         log.error("no valid I2C address configured: not joining the bus")
         return None
-    target = machine.I2CTarget(cfg.i2c.bus, cfg.address, scl=machine.Pin(cfg.i2c.scl),
-                               sda=machine.Pin(cfg.i2c.sda))
-    return I2CTargetAdapter(core, target, cfg.i2c.whole_reply_writes)
+    try:
+        target = machine.I2CTarget(cfg.i2c.bus, cfg.address, scl=machine.Pin(cfg.i2c.scl),
+                                   sda=machine.Pin(cfg.i2c.sda))
+        return I2CTargetAdapter(core, target, cfg.i2c.whole_reply_writes)
+    except (ValueError, OSError, TypeError) as exc:
+        log.error("cannot join the bus as I2C target 0x%02x on I2C%d (SDA %d, SCL %d): %r"
+                  % (cfg.address, cfg.i2c.bus, cfg.i2c.sda, cfg.i2c.scl, exc))
+        return None
 
 
 def run(config_path=config.CONFIG_FILE):

@@ -36,14 +36,21 @@ except ImportError:
         return value
 
 _QUEUE_SLOTS = const(16)  # a power of two, so slot = counter % slots survives counter wrap
-# A slot: the frame, then the flags right after it was accepted and the halt epoch at that time.
-_SLOT = MAX_FRAME + 2
+# A slot: the frame, then what held when it was accepted: the flags right after it, the halt epoch
+# and the stop epoch (8 bits each; a slot lives for about a millisecond).
+_SLOT = MAX_FRAME + 3
+_SLOT_FLAGS = MAX_FRAME
+_SLOT_HALTS = MAX_FRAME + 1
+_SLOT_STOPS = MAX_FRAME + 2
 _MOTION_BLOCKED = FLAG_STALL | FLAG_NOTENABLED
-_COUNTER_MASK = const(0x3FFFFFFF)  # keeps counters small ints on 32-bit ports
+# IRQ counters wrap here: +1 must stay a small int on 32-bit ports (largest 2**30 - 1) even before
+# the mask, or the hard IRQ would allocate a long int.
+COUNTER_MASK = const(0x1FFFFFFF)
 _DEG_TO_FULL_STEPS = 200.0 / 360.0
 _HOMING_SETTLE_MS = const(500)
 _MOVE_TIMEOUT_MS = const(10000)
 _ORIENTATION_MAX_ROUNDS = const(10)
+_WIND_DOWN_STEPS = const(8)
 
 
 def _no_irq_off():
@@ -77,6 +84,7 @@ class JointController:
         self.q_set = 0.0
         self.positioning = False
         self.closed_loop = False
+        self.inverted = False
         self.stallguard = False
         self.stall = StallDetector(cfg.stall)
         self.trace = None  # main loop: called with the detector after every stall-detection sample
@@ -97,8 +105,16 @@ class JointController:
         self._q_out = 0  # written by the main loop only
         self._blocking_in = 0  # blocking commands accepted (IRQ) ...
         self._blocking_out = 0  # ... and taken from the queue (main loop)
+        self._blocking_stops = 0  # stop epoch when the latest blocking command was accepted
         self.transactions = 0
-        self.halts = 0  # bumped by the main loop whenever it stops the motor on its own
+        # Epochs (8 bits). `stops`: STOP frames (IRQ); a task or queued blocking command from an
+        # older epoch is cancelled. `halts`: whatever stopped the motor (STOP in the IRQ, stall or
+        # deadman in the main loop); queued motion from an older epoch is not applied.
+        # `stall_rearms`: frames that cleared STALL, so a stall decided before one is dropped.
+        self.stops = 0
+        self.halts = 0
+        self.stall_rearms = 0
+        self._stops_seen = 0
         self._motion_allowed = False
         self.rejects = 0
         self._logged_rejects = 0
@@ -110,6 +126,7 @@ class JointController:
         self._stall_period_ms = int(cfg.stall.sample_time * 1000 + 0.5)
         self._task = None
         self.task_name = None
+        self._task_stops = 0  # the stop epoch the running task belongs to
         self._task_wake = now
         self._handlers = {
             SETUP: self._setup, SETRPM: self._set_rpm, MOVESTEPS: self._move_steps,
@@ -120,7 +137,7 @@ class JointController:
             ENABLESTALLGUARD: self._enable_stallguard, DISABLESTALLGUARD: self._disable_stallguard,
             CLEARSTALL: self._clear_stall, SETBRAKEMODE: self._set_brake_mode,
             ENABLECLOSEDLOOP: self._enable_closed_loop, DISABLECLOSEDLOOP: self._disable_closed_loop,
-            STOP: self._stop, CHECKORIENTATION: self._check_orientation, HOME: self._home,
+            CHECKORIENTATION: self._check_orientation, HOME: self._home,
         }
         if self.disabled:
             for problem in cfg.errors:
@@ -135,7 +152,7 @@ class JointController:
 
     def host_seen(self):
         """A transaction addressed to this joint ended (feeds the deadman)."""
-        self.transactions = (self.transactions + 1) & _COUNTER_MASK
+        self.transactions = (self.transactions + 1) & COUNTER_MASK
 
     def on_frame(self, frame, n):
         """A write of n bytes (register + payload) ended. `frame` holds at most MAX_FRAME bytes."""
@@ -154,9 +171,10 @@ class JointController:
         if reason == REJECT_NONE:
             if self.disabled:
                 reason = REJECT_DISABLED
-            elif reg.blocking and (self._task is not None or self._blocking_in != self._blocking_out):
+            elif reg.blocking and self._blocking_live():
                 reason = REJECT_BUSY
-            elif addr != HOMEOFFSET and ((self._q_in - self._q_out) & _COUNTER_MASK) >= _QUEUE_SLOTS:
+            elif (addr != HOMEOFFSET and addr != STOP
+                  and ((self._q_in - self._q_out) & COUNTER_MASK) >= _QUEUE_SLOTS):
                 reason = REJECT_QUEUE_FULL
         if reason != REJECT_NONE:
             self._reject(addr, reason)
@@ -165,7 +183,14 @@ class JointController:
         if reg.zero_sets and frame[1] == 0:
             flags |= reg.zero_sets
         self.flags = flags
-        if addr == HOMEOFFSET:
+        if reg.clears & FLAG_STALL:
+            self.stall_rearms = (self.stall_rearms + 1) & 0xFF
+        if addr == STOP:
+            # Immediate, as in the original's ISR: cancels the running blocking command and any
+            # motion still queued; the main loop commands 0 RPM next.
+            self.stops = (self.stops + 1) & 0xFF
+            self.halts = (self.halts + 1) & 0xFF
+        elif addr == HOMEOFFSET:
             cache = self._cache[HOMEOFFSET]
             for i in range(4):
                 cache[i] = frame[1 + i]
@@ -174,13 +199,21 @@ class JointController:
             queue = self._queue
             for i in range(n):
                 queue[base + i] = frame[i]
-            queue[base + MAX_FRAME] = flags
-            queue[base + MAX_FRAME + 1] = self.halts
+            queue[base + _SLOT_FLAGS] = flags
+            queue[base + _SLOT_HALTS] = self.halts
+            queue[base + _SLOT_STOPS] = self.stops
             if reg.blocking:
-                self._blocking_in = (self._blocking_in + 1) & _COUNTER_MASK
-            self._q_in = (self._q_in + 1) & _COUNTER_MASK
+                self._blocking_stops = self.stops
+                self._blocking_in = (self._blocking_in + 1) & COUNTER_MASK
+            self._q_in = (self._q_in + 1) & COUNTER_MASK
         self._reply_reg = None
         self._reply_err = 0
+
+    def _blocking_live(self):
+        """A blocking command is queued or running and no STOP has cancelled it."""
+        if self._blocking_in != self._blocking_out and self._blocking_stops == self.stops:
+            return True
+        return self._task is not None and self._task_stops == self.stops
 
     def _reject(self, addr, reason):
         self._reply_reg = None
@@ -242,9 +275,14 @@ class JointController:
     def _service_motor(self, now):
         diff = self.clock.ticks_diff
         self.hal.update()
+        if self.stops != self._stops_seen:
+            self._stops_seen = self.stops
+            self.hal.set_rpm(0)
+            self.qd_set = 0.0
+            self.positioning = False
         while self._q_out != self._q_in:
             self._apply_next()
-        if self._task is not None and diff(now, self._task_wake) >= 0:
+        if self._task is not None and (diff(now, self._task_wake) >= 0 or self._cancelled()):
             self._step_task(now)
         if self.positioning and self.hal.position_reached():
             self.positioning = False
@@ -280,26 +318,38 @@ class JointController:
         queue = self._queue
         addr = queue[base]
         # Motion is judged by the state in command order: the flags right after this command was
-        # accepted, and no stop by the main loop (stall, deadman) since then.
-        self._motion_allowed = (not queue[base + MAX_FRAME] & _MOTION_BLOCKED
-                                and queue[base + MAX_FRAME + 1] == self.halts)
-        handler = self._handlers[addr]
+        # accepted, and nothing stopped the motor (STOP, stall, deadman) since then.
+        self._motion_allowed = (not queue[base + _SLOT_FLAGS] & _MOTION_BLOCKED
+                                and queue[base + _SLOT_HALTS] == self.halts)
         if BY_ADDR[addr].blocking:
-            self._blocking_out = (self._blocking_out + 1) & _COUNTER_MASK
-        handler(queue, base + 1)
-        self._q_out = (self._q_out + 1) & _COUNTER_MASK
+            if queue[base + _SLOT_STOPS] == self.stops:
+                self._finish_cancelled_task()
+                self._handlers[addr](queue, base + 1)
+            else:
+                self.log.info("%s cancelled by STOP before it started" % BY_ADDR[addr].name)
+            self._blocking_out = (self._blocking_out + 1) & COUNTER_MASK
+        else:
+            self._handlers[addr](queue, base + 1)
+        self._q_out = (self._q_out + 1) & COUNTER_MASK
 
     def _may_move(self):
         return self._motion_allowed
 
-    def _halt(self, flag):
-        """Stop-worthy event found by the main loop: set `flag`, invalidate queued motion."""
+    def _halt(self, flag, rearms=-1, transactions=-1):
+        """Set `flag` and invalidate queued motion, unless the host re-armed the joint (a frame
+        cleared STALL: `rearms` changed) or spoke (`transactions` changed) since the decision.
+        Returns whether it halted."""
         state = self._irq_off()
+        if (rearms >= 0 and rearms != self.stall_rearms
+                or transactions >= 0 and transactions != self.transactions):
+            self._irq_on(state)
+            return False
         self.flags |= flag
         self.halts = (self.halts + 1) & 0xFF
         self._irq_on(state)
         self.qd_set = 0.0
         self.positioning = False
+        return True
 
     # Register handlers: (queue, payload offset), main loop.
 
@@ -381,38 +431,55 @@ class JointController:
         self.hal.disable_closed_loop()
         self.closed_loop = False
 
-    def _stop(self, q, off):
-        self.hal.set_rpm(0)
-        self.qd_set = 0.0
-        self.positioning = False
-
     def _check_orientation(self, q, off):
-        if self.flags & FLAG_BUSY:
-            self._start_task("CHECKORIENTATION", self._orientation(_f32(q, off)))
-        else:
-            self.log.info("CHECKORIENTATION cancelled by STOP before it started")
+        # The sign would only swap what counts as inverted: a negative angle would flip a
+        # correctly wired motor into closed-loop runaway.
+        self._start_task("CHECKORIENTATION", self._orientation(abs(_f32(q, off))))
 
     def _home(self, q, off):
-        if self.flags & FLAG_BUSY:
-            self._start_task("HOME", self._homing(q[off], q[off + 1], q[off + 2], q[off + 3]))
-        else:
-            self.log.info("HOME cancelled by STOP before it started")
+        self._start_task("HOME", self._homing(q[off], q[off + 1], q[off + 2], q[off + 3]))
 
     # Blocking commands: generators yielding how many milliseconds to wait.
 
     def _start_task(self, name, task):
-        self._task = task
+        self._task_stops = self.stops  # before _task: the IRQ reads both
         self.task_name = name
         self._task_wake = self.clock.ticks_ms()
+        self._task = task
+
+    def _cancelled(self):
+        return self._task_stops != self.stops
 
     def _step_task(self, now):
         try:
             wait = next(self._task)
             self._task_wake = self.clock.ticks_add(now, wait)
         except StopIteration:
-            self._task = None
-            self.task_name = None
-            self._clear_flags(FLAG_BUSY)
+            self._end_task()
+
+    def _end_task(self):
+        # One critical section: a blocking command accepted in between would otherwise lose its
+        # BUSY. A cancelled task's BUSY went with the STOP and may belong to a newer command now.
+        state = self._irq_off()
+        if not self._cancelled():
+            self.flags &= ~FLAG_BUSY
+        self._task = None
+        self._irq_on(state)
+        self.task_name = None
+
+    def _finish_cancelled_task(self):
+        """Let a task a STOP cancelled wind down (it does not wait any more) before a new one."""
+        task = self._task
+        if task is None:
+            return
+        for _ in range(_WIND_DOWN_STEPS):
+            try:
+                next(task)
+            except StopIteration:
+                break
+        else:
+            task.close()
+        self._end_task()
 
     def _boot(self):
         """The original setup(): closed loop, boot limits, orientation check, then freewheel."""
@@ -435,16 +502,21 @@ class JointController:
         self.log.info("%s ready at 0x%02x" % (self.cfg.joint, self.cfg.address))
 
     def _wait_reached(self):
+        """Wait for a positioning move; False on timeout or when a STOP cancelled the task."""
         waited = 0
         while not self.hal.position_reached():
-            if waited >= _MOVE_TIMEOUT_MS:
+            if waited >= _MOVE_TIMEOUT_MS or self._cancelled():
                 return False
             waited += 1
             yield 1
         return True
 
     def _orientation(self, degrees):
-        """The stepper library's checkOrientation: +/- moves until two agree on the direction."""
+        """The stepper library's checkOrientation: +/- moves until two agree on the direction.
+
+        Unlike the library it gives up on a STOP or a move that never arrives (the library
+        waited forever), keeping the driver direction it had.
+        """
         hal = self.hal
         hal.disable_closed_loop()
         hal.set_inverted(False)
@@ -456,22 +528,26 @@ class JointController:
                 break
             start = hal.angle_moved()
             hal.move_angle(degrees)
-            reached = yield from self._wait_reached()
+            if not (yield from self._wait_reached()):
+                break
             if hal.angle_moved() < start:
                 inverted += 1
             else:
                 normal += 1
             hal.move_angle(-degrees)
-            reached = (yield from self._wait_reached()) and reached
-            if not reached:
-                self.log.error("orientation check move timed out")
-                hal.stop(True)
+            if not (yield from self._wait_reached()):
                 break
             if inverted and normal:
                 inverted = normal = 0
-        hal.set_inverted(inverted >= 2)
-        if inverted >= 2:
-            self.log.info("motor wiring inverted: driver direction reversed")
+        if inverted >= 2 or normal >= 2:
+            self.inverted = inverted >= 2
+            if self.inverted:
+                self.log.info("motor wiring inverted: driver direction reversed")
+        else:
+            hal.stop(True)
+            self.log.error("orientation check %s; driver direction unchanged"
+                           % ("stopped" if self._cancelled() else "did not finish"))
+        hal.set_inverted(self.inverted)
         if self.closed_loop:
             hal.enable_closed_loop()
 
@@ -481,10 +557,10 @@ class JointController:
         hal.stop(True)
         yield _HOMING_SETTLE_MS
         homed = False
-        if self.flags & FLAG_BUSY:
+        if not self._cancelled():
             hal.set_rpm(speed if direction else -speed)
             hal.set_current(current)
-            while self.flags & FLAG_BUSY:
+            while not self._cancelled():
                 if abs(hal.pid_error()) > sensitivity:
                     homed = True
                     break
@@ -505,12 +581,12 @@ class JointController:
         if not self.stallguard or self.flags & (FLAG_STALL | FLAG_BUSY):
             return
         hal = self.hal
+        rearms = self.stall_rearms
         stalled = self.stall.update(hal.pid_error(), hal.encoder_rpm(), self.qd_set)
         if self.trace is not None:
             self.trace(self.stall)
-        if stalled:
+        if stalled and self._halt(FLAG_STALL, rearms=rearms):
             hal.stop(True)
-            self._halt(FLAG_STALL)
             self.log.warn("stall detected (filtered error %.1f > threshold %.1f)"
                           % (self.stall.filtered, self.stall.threshold))
 
@@ -519,7 +595,6 @@ class JointController:
         if self.flags & (FLAG_NOTENABLED | FLAG_BUSY) or not (self.qd_set != 0 or self.positioning):
             return
         silent = self.clock.ticks_diff(now, self._last_host_ms)
-        if silent > self.cfg.deadman_ms:
+        if silent > self.cfg.deadman_ms and self._halt(FLAG_NOTENABLED, transactions=self._seen_transactions):
             self.hal.set_rpm(0)
-            self._halt(FLAG_NOTENABLED)
             self.log.warn("deadman: no I2C traffic for %d ms, motor stopped and disabled" % silent)

@@ -226,3 +226,46 @@ def test_a_motor_backend_failure_disables_the_joint_instead_of_crashing():
     assert rig.core.flags & P.FLAG_NOTENABLED and not rig.core.flags & P.FLAG_BUSY
     assert any("motor fault" in line and "TMC2209" in line for line in rig.lines), rig.lines
     assert rig.command("SETUP", 20, 20, 0, 0) & P.FLAG_ERROR
+
+
+def test_stop_during_check_orientation_ends_it_without_further_moves():
+    rig = Rig()
+    _enable(rig)
+    rig.motor.reached = False
+    rig.command("CHECKORIENTATION", 2.0)
+    rig.run_ms(50)
+    assert rig.command("STOP", 0) & P.FLAG_BUSY == 0
+    rig.run_ms(2)
+    assert rig.core.task_name is None and not rig.core.flags & P.FLAG_BUSY
+    rig.motor.calls = []
+    rig.run_ms(12000)
+    assert [c for c in rig.motor.calls if c[0].startswith("move")] == [], "no move after the STOP"
+
+
+def test_a_negative_orientation_angle_checks_the_same_way():
+    rig = Rig()
+    _enable(rig)
+    rig.motor.wiring = 1
+    rig.command("CHECKORIENTATION", -2.0)
+    rig.run_ms(20)
+    assert ("set_inverted", True) not in rig.motor.calls, "a correctly wired motor stays as it is"
+    assert [c[1] for c in rig.motor.calls if c[0] == "move_angle"][:2] == [2.0, -2.0]
+
+
+def test_a_stall_decided_before_the_host_rearmed_is_dropped():
+    rig = Rig()
+    _enable(rig)
+    rig.command("ENABLESTALLGUARD", 6)
+    rig.run_ms(1)
+    rig.motor.error = 1000.0
+    original = rig.core.stall.update
+
+    def rearm_while_sampling(*args):
+        stalled = original(*args)
+        rig.command("SETUP", 20, 20, 0, 0)  # the IRQ answers "STALL clear" meanwhile
+        return stalled
+    rig.core.stall.update = rearm_while_sampling
+    for _ in range(200):
+        rig.run_ms(1)
+        rig.motor.error = rig.motor.error + 50.0
+    assert not rig.core.flags & P.FLAG_STALL

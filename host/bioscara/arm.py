@@ -122,14 +122,14 @@ class Arm:
         """Enable every joint with its limits; commands start at the measured position, velocity 0."""
         with self._lock:
             self._expect("activate", Lifecycle.INACTIVE)
-            done: list[ArmJoint] = []
+            touched: list[ArmJoint] = []
             try:
                 for aj in self.joints.values():
                     aj.modes = set()
+                    touched.append(aj)  # before enabling: a half-activated joint is rolled back too
                     self._activate_joint(aj)
-                    done.append(aj)
             except BioscaraError:
-                for aj in done:
+                for aj in touched:
                     self._try(aj.joint.disable)
                 raise
             self.lifecycle = Lifecycle.ACTIVE
@@ -226,12 +226,15 @@ class Arm:
         """Refresh every joint's state (2 transactions per joint); finish homings that ended."""
         with self._lock:
             self._expect("read", Lifecycle.INACTIVE, Lifecycle.ACTIVE)
-            try:
-                for aj in self.joints.values():
+            first: BioscaraError | None = None
+            for aj in self.joints.values():
+                try:
                     self._read_joint(aj)
-            except BioscaraError as exc:
-                self._fault(exc)
-                raise
+                except BioscaraError as exc:  # the other joints' states stay fresh
+                    first = first or exc
+            if first is not None:
+                self._fault(first)
+                raise first
 
     def _read_joint(self, aj: ArmJoint) -> None:
         joint = aj.joint
@@ -241,7 +244,8 @@ class Arm:
             aj.state.position = math.nan
         aj.state.velocity = joint.get_velocity()
         aj.state.home = 1.0 if joint.is_homed() else 0.0
-        if joint.current_blocking is BlockingCommand.HOME and not joint.is_busy():
+        if (joint.current_blocking is BlockingCommand.HOME and not joint.is_busy()
+                and self.lifecycle is Lifecycle.ACTIVE):
             if self._stop_homing(aj):
                 aj.state.position = joint.get_position()  # in the frame of the new offset
             else:
@@ -276,15 +280,17 @@ class Arm:
             raise IncorrectStateError(f"busy with {joint.current_blocking.name}", joint=aj.config.name)
 
     def _fault(self, exc: BioscaraError) -> None:
-        """An error in the cycle: disable the joints (best effort), remember why."""
+        """An error in the cycle: remember why; if active, disable the joints (best effort)."""
         self.fault = exc
+        if self.lifecycle is not Lifecycle.ACTIVE:
+            log.debug("read failed while inactive: %s", exc)
+            return
         log.error("arm fault, disabling joints: %s", exc)
-        if self.lifecycle is Lifecycle.ACTIVE:
-            self.lifecycle = Lifecycle.INACTIVE
-            try:
-                self._disable_all()
-            except BioscaraError as disable_error:
-                log.error("could not disable every joint after the fault: %s", disable_error)
+        self.lifecycle = Lifecycle.INACTIVE
+        try:
+            self._disable_all()
+        except BioscaraError as disable_error:
+            log.error("could not disable every joint after the fault: %s", disable_error)
 
     # ---- command modes ----
 
@@ -320,24 +326,36 @@ class Arm:
 
     def _perform_switch(self, starting: list[tuple[ArmJoint, Mode]], stopping: list[tuple[ArmJoint, Mode]],
                         new_modes: dict[str, set[Mode]]) -> None:
+        """Commit the modes, then every joint's step; the first failure faults the arm and is raised."""
         for name, modes in new_modes.items():
             self.joints[name].modes = modes
+        active = self.lifecycle is Lifecycle.ACTIVE
+        first: BioscaraError | None = None
+        steps: list[Callable[[], object]] = []
         for aj, mode in stopping:
             if mode is Mode.VELOCITY:
                 aj.command.velocity = 0.0
-                if self.lifecycle is Lifecycle.ACTIVE:
-                    aj.joint.set_velocity(0.0)
-            elif mode is Mode.HOME and self.lifecycle is Lifecycle.ACTIVE:
-                self._activate_joint(aj)
+                if active:
+                    steps.append(aj.joint.stop)  # 0 RPM without the guards a disabled joint would trip
+            elif mode is Mode.HOME and active:
+                steps.append(lambda aj=aj: self._activate_joint(aj))
         for aj, mode in starting:
             if mode is Mode.HOME:
                 aj.command.home = 0.0
-                if self.lifecycle is Lifecycle.ACTIVE:
-                    self._deactivate_joint(aj)
+                if active:
+                    steps.append(lambda aj=aj: self._deactivate_joint(aj))
             elif mode is Mode.POSITION:
                 aj.command.position = aj.state.position
             else:
                 aj.command.velocity = 0.0
+        for step in steps:
+            try:
+                step()
+            except BioscaraError as exc:
+                first = first or exc
+        if first is not None:
+            self._fault(first)  # a joint that cannot be reached or enabled: stop the arm
+            raise first
 
     def _interface(self, name: str) -> tuple[ArmJoint, Mode]:
         joint, _, mode = name.partition("/")

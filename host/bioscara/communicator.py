@@ -24,7 +24,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from .arm import Arm, Lifecycle
-from .errors import BioscaraError
+from .errors import BioscaraError, InvalidArgumentError
 from .joint import WaitTimeoutError
 
 log = logging.getLogger("bioscara.communicator")
@@ -125,7 +125,7 @@ class TimingStats:
 class Communicator:
     def __init__(self, arm: Arm, frequency: float = 100.0, *, realtime_priority: int | None = 50) -> None:
         if not 0 < frequency <= 10_000:
-            raise ValueError(f"frequency must be in (0, 10000] Hz, got {frequency}")
+            raise InvalidArgumentError(f"the cycle rate must be in (0, 10000] Hz, got {frequency:g}")
         self.arm = arm
         self.bus = arm.bus
         self.frequency = frequency
@@ -198,26 +198,37 @@ class Communicator:
 
     # ---- in the calling thread ----
 
-    def run_for(self, seconds: float) -> None:
-        self.run_until(lambda: False, seconds, raise_on_timeout=False)
+    def run_for(self, seconds: float, *, stop_on_fault: bool = True) -> None:
+        self.run_until(lambda: False, seconds, raise_on_timeout=False, stop_on_fault=stop_on_fault)
 
-    def run_until(self, predicate: Callable[[], bool], timeout: float, *, raise_on_timeout: bool = True) -> None:
-        """Cycle until `predicate()` holds (checked after each cycle) or `timeout` s pass on the bus clock."""
+    def run_until(self, predicate: Callable[[], bool], timeout: float, *, raise_on_timeout: bool = True,
+                  stop_on_fault: bool = True) -> None:
+        """Cycle until `predicate()` holds (checked after each cycle) or `timeout` s pass on the bus clock.
+
+        A new arm fault (the cycle failed, the arm disabled its joints) ends the wait by raising that
+        error, unless `stop_on_fault` is False (monitoring a bus with a missing joint, say).
+        """
         deadline = self.bus.monotonic() + timeout
+        fault = self.arm.fault
+
+        def finished() -> bool:
+            if stop_on_fault and self.arm.fault is not None and self.arm.fault is not fault:
+                raise self.arm.fault
+            return predicate()
         if self.running:
             with self._cycled:
-                while not predicate():
+                while not finished():
                     remaining = deadline - self.bus.monotonic()
                     if remaining <= 0 or not self.running:
                         break
                     self._cycled.wait(min(remaining, 0.1) if self.bus.scheme != "sim" else 0.01)
-            done = predicate()
+            done = finished()
         else:
             done = False
             while True:
                 self._wait_next()
                 self.cycle()
-                if predicate():
+                if finished():
                     done = True
                     break
                 if self.bus.monotonic() >= deadline:
@@ -236,6 +247,7 @@ class Communicator:
             return
         self._stop.clear()
         self._next = None
+        self._last_start = None  # the pause is not a period
         self._thread = threading.Thread(target=self._loop, name="bioscara-communicator", daemon=True)
         self._thread.start()
 

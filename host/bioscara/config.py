@@ -278,8 +278,34 @@ def _joints(p: _Problems, top: dict[str, Any]) -> dict[str, JointConfig]:
         elif address is not None:
             used[address] = name
         if ordered and len(values) == len(_JOINT_KEYS) and len(homing) == len(_HOMING_KEYS):
-            joints[name] = JointConfig(name=name, homing=HomingConfig(**homing), **values)
+            joint = JointConfig(name=name, homing=HomingConfig(**homing), **values)
+            if _check_motor_side(p, joint, path):
+                joints[name] = joint
     return joints
+
+
+def _check_motor_side(p: _Problems, jc: JointConfig, path: str) -> bool:
+    """What the joint values become at the motor must be what the protocol accepts (protocol.py)."""
+    from .transmission import Transmission
+    t = Transmission(jc.reduction)
+    ok = True
+    rpm = abs(t.motor_rpm(jc.homing.speed))
+    if not 1.0 <= rpm <= 250.0:
+        p.add(f"{path}.homing.speed = {jc.homing.speed} is {rpm:.3g} motor RPM with reduction "
+              f"{jc.reduction}; homing needs 1..250 RPM")
+        ok = False
+    for key, value in (("max_velocity", jc.max_velocity), ("max_acceleration", jc.max_acceleration),
+                       ("homing.acceleration", jc.homing.acceleration)):
+        motor = t.motor_limit(value)
+        if not 1e-3 <= motor <= 1e6:
+            p.add(f"{path}.{key} = {value} is {motor:.3g} motor degrees (/s, /s^2) with reduction "
+                  f"{jc.reduction}; the joint accepts 0.001..1e6")
+            ok = False
+    span = abs(t.motor_degrees(jc.max) - t.motor_degrees(jc.min))
+    if span > 1e6:
+        p.add(f"{path}: min..max spans {span:.3g} motor degrees; the joint accepts at most 1e6")
+        ok = False
+    return ok
 
 
 def _gripper(p: _Problems, top: dict[str, Any]) -> GripperConfig | None:

@@ -12,9 +12,9 @@ from .gripper import BaseGripper, Gripper, MockGripper
 
 
 def sim_joint_specs(config: ArmConfig) -> list[SimJointSpec]:
-    """The simulated joints for `config`: firmware J1..J4 in order, end stops at the joint limits."""
-    return [SimJointSpec(f"J{i + 1}", jc.address, jc.reduction, jc.min, jc.max, config.sim.start[name])
-            for i, (name, jc) in enumerate(config.joints.items())]
+    """The simulated joints for `config`: j1..j4 run firmware J1..J4, end stops at the joint limits."""
+    return [SimJointSpec(name.upper(), jc.address, jc.reduction, jc.min, jc.max, config.sim.start[name])
+            for name, jc in config.joints.items()]
 
 
 def open_arm_bus(config: ArmConfig, **overrides: Any) -> Bus:

@@ -112,6 +112,7 @@ class Joint:
         if self._open:
             return
         self._open = True
+        self.current_blocking = BlockingCommand.NONE  # whatever ran before is the joint's past now
         try:
             self.check_com()
             if self.is_homed():
@@ -123,6 +124,7 @@ class Joint:
     def close(self) -> None:
         """Stop using the joint (no motor I/O; call `disable` first to de-energize). Idempotent."""
         self._open = False
+        self.current_blocking = BlockingCommand.NONE
 
     deinit = close
 
@@ -182,6 +184,7 @@ class Joint:
                 step()
             except BioscaraError as exc:
                 first = first or exc
+        self.current_blocking = BlockingCommand.NONE  # its STOP aborted any homing
         if first is not None:
             raise first
 

@@ -86,6 +86,10 @@ def read_trace(path: str | Path) -> tuple[dict[str, Any], list[dict[str, float |
                 for line in f:
                     record = json.loads(line)
                     rows.append({"time": record["time"], "cycle": record["cycle"], **record["values"]})
-    except (OSError, ValueError, KeyError) as exc:
-        raise InvalidArgumentError(f"{path}: not a bioscara recording ({exc})") from None
+        for key in ("joints", "bus", "spec_hash", "rate_hz"):
+            meta[key]  # noqa: B018 - a recording without these cannot be labelled or plotted
+        if not isinstance(meta["joints"], list):
+            raise ValueError("metadata 'joints' is not a list")
+    except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
+        raise InvalidArgumentError(f"{path}: not a bioscara recording ({type(exc).__name__}: {exc})") from None
     return meta, rows

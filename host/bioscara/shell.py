@@ -292,7 +292,11 @@ class Shell:
         seconds = _number(args[0], "SECONDS")
         if seconds < 0:
             raise ShellError(f"SECONDS must not be negative, got {args[0]}")
-        self.communicator.run_for(seconds)
+        try:
+            self.communicator.run_for(seconds)
+        except BioscaraError as exc:
+            if exc is not self.arm.fault:
+                raise  # an arm fault ends the wait; _report_fault describes it
 
     # ---- lifecycle and commands ----
 

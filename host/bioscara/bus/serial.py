@@ -234,7 +234,10 @@ class SerialBus(Bus):
 
     def _connected(self) -> serial.Serial:
         if self._serial is None:
-            self._serial = open_port(self.port, baud=self.baud, timeout=self.timeout / _READ_SLICE)
+            try:
+                self._serial = open_port(self.port, baud=self.baud, timeout=self.timeout / _READ_SLICE)
+            except CommError as exc:  # an attempt that failed: the base class retries and counts it
+                raise OSError(errno.ENODEV, exc.detail) from None
             self._stats.reconnects += 1
         return self._serial
 

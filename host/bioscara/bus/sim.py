@@ -87,7 +87,8 @@ class SimBus(Bus):
     def _catch_up(self) -> None:
         if self.realtime:
             elapsed_us = int((time.monotonic() - self._wall_start) * 1e6)
-            self.sim.run_until(self._virtual_start + elapsed_us)
+            with self._lock:
+                self.sim.run_until(self._virtual_start + elapsed_us)
 
     def _transfer_once(self, addr: int, write: bytes | None, read_len: int) -> bytes:
         self._catch_up()
@@ -106,7 +107,8 @@ class SimBus(Bus):
             time.sleep(seconds)
             self._catch_up()
         else:
-            self.sim.sleep(seconds)
+            with self._lock:  # the simulation is one state: one thread advances it at a time
+                self.sim.sleep(seconds)
 
     def monotonic(self) -> float:
         if self.realtime:
@@ -115,4 +117,5 @@ class SimBus(Bus):
 
     def run_for(self, seconds: float) -> None:
         """Advance the simulation (virtual mode), e.g. to let the joints boot."""
-        self.sim.sleep(seconds)
+        with self._lock:
+            self.sim.sleep(seconds)

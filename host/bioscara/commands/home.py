@@ -52,9 +52,9 @@ def _progress(arm: Arm) -> Table:
 def run(args: argparse.Namespace, session: Session) -> int:
     names = list(session.config.joints) if "all" in args.joints else args.joints
     arm = session.arm_of(names)
+    comm = Communicator(arm, frequency=args.rate)
     arm.configure()
     arm.activate()
-    comm = Communicator(arm, frequency=args.rate)
     directions = {name: args.direction for name in names} if args.direction else None
     t0 = arm.bus.monotonic()
     with Live(_progress(arm), console=session.console, transient=session.json,

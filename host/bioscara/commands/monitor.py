@@ -36,11 +36,9 @@ def _table(snapshot: Snapshot | None, comm: Communicator) -> Table:
 
 
 def run(args: argparse.Namespace, session: Session) -> int:
-    if args.rate <= 0:
-        raise ValueError("--rate must be positive")
     arm = session.arm
-    arm.configure()
     comm = Communicator(arm, frequency=args.rate)
+    arm.configure()
     writer = TraceWriter(args.record, list(arm.joints), args.rate, session.bus.describe()) if args.record else None
     end = None if args.duration is None else session.bus.monotonic() + args.duration
     try:
@@ -54,7 +52,7 @@ def run(args: argparse.Namespace, session: Session) -> int:
                 live.update(_table(snapshot, comm), refresh=True)
                 return ((args.samples is not None and comm.stats.cycles >= args.samples)
                         or (end is not None and session.bus.monotonic() >= end))
-            comm.run_until(sample, timeout=float("inf"))
+            comm.run_until(sample, timeout=float("inf"), stop_on_fault=False)
     except KeyboardInterrupt:
         pass
     finally:
@@ -62,5 +60,7 @@ def run(args: argparse.Namespace, session: Session) -> int:
             writer.close()
     summary = {"samples": comm.stats.cycles, "rate_hz": comm.stats.rate, "errors": comm.stats.errors,
                "record": args.record, "rows": writer.rows if writer else 0}
-    session.emit(summary, f"{comm.stats.cycles} samples" + (f", {writer.rows} rows in {args.record}" if writer else ""))
-    return 0
+    errors = f", {comm.stats.errors} with errors (last: {arm.fault})" if comm.stats.errors else ""
+    session.emit(summary, f"{comm.stats.cycles} samples" + (f", {writer.rows} rows in {args.record}" if writer else "")
+                 + errors)
+    return 1 if comm.stats.errors else 0

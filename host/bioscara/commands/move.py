@@ -31,6 +31,9 @@ def run(args: argparse.Namespace, session: Session) -> int:
     arm.activate()
     comm = Communicator(arm, frequency=50.0)
     final = motion.move_to(arm, comm, {args.joint: args.value}, args.tolerance, args.timeout)
+    # The firmware stops a position move the host stops watching (deadman); STOP ends the move
+    # here, so the joint holds where it is once this command exits.
+    arm[args.joint].joint.stop()
     session.emit({"joint": args.joint, "target": args.value, "position": final[args.joint]},
                  f"{args.joint} at {final[args.joint]:+.5f} (target {args.value:+.5f})")
     return 0

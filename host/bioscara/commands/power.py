@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from ..errors import BioscaraError
 from ..session import Session
 
 
@@ -31,9 +32,13 @@ def enable(args: argparse.Namespace, session: Session) -> int:
 
 
 def disable(args: argparse.Namespace, session: Session) -> int:
-    names = selected(session, args.joints)
-    for name in names:
-        session.joint(name).disable()
-    session.emit([{"joint": name, "enabled": False} for name in names],
-                 "\n".join(f"{name}: disabled (freewheeling)" for name in names))
-    return 0
+    results: dict[str, str] = {}
+    for name in selected(session, args.joints):
+        try:  # disable the others even if one does not answer
+            session.joint(name).disable()
+            results[name] = "disabled (freewheeling)"
+        except BioscaraError as exc:
+            results[name] = f"FAILED: {exc}"
+    session.emit([{"joint": name, "result": result} for name, result in results.items()],
+                 "\n".join(f"{name}: {result}" for name, result in results.items()))
+    return 0 if all(not r.startswith("FAILED") for r in results.values()) else 1
