@@ -60,8 +60,9 @@ class _Views:
 class Bridge:
     """Serves bridge requests; counters: `requests`, `answered` by status, parser's error counts."""
 
-    def __init__(self, i2c, stream, clock, freq=0):
+    def __init__(self, i2c, stream, clock, freq=0, repl_escape=True):
         self._i2c = i2c
+        self._repl_escape = repl_escape
         self._stream = stream
         self._clock = clock
         self._freq = freq
@@ -74,12 +75,19 @@ class Bridge:
         self._last_rx_ms = clock.ticks_ms()
         self.requests = 0
         self.statuses = [0] * len(F.STATUS_NAMES)
+        self.replays = 0
+        # The last request answered (SEQ, KIND, CRC) and its answer's size: a request seen again
+        # is a host retry after a lost answer, so the answer is sent again, not the I2C work redone.
+        self._last_seq = -1
+        self._last_kind = -1
+        self._last_crc = -1
+        self._last_size = 0
 
     def poll(self):
         """Read what the stream holds (up to one chunk) and answer every complete request."""
         n = self._stream.readinto(self._rx) or 0
         parser = self.parser
-        if n and not parser.partial and self._interrupt_requested(n):
+        if n and self._repl_escape and not parser.partial and self._interrupt_requested(n):
             raise KeyboardInterrupt
         now = self._clock.ticks_ms()
         if n:
@@ -118,6 +126,11 @@ class Bridge:
         length = 0
         if kind & F.RESPONSE:
             return  # another bridge's answer (or an echo): answering it could start a loop
+        crc = (req[parser.size - 2] << 8) | req[parser.size - 1]
+        if parser.seq == self._last_seq and kind == self._last_kind and crc == self._last_crc:
+            self.replays += 1
+            self._stream.write(self._frames.get(self._last_size))
+            return
         if kind == F.XFER or kind == F.READ:
             rlen = req[5] if n >= 2 else 0
             if n < 2 or req[4] > 0x7F or rlen > F.MAX_DATA or kind == F.READ and (n != 2 or rlen == 0):
@@ -139,6 +152,7 @@ class Bridge:
         self.statuses[status] += 1
         tx[F.HEADER] = status
         size = F.seal(tx, kind | F.RESPONSE, parser.seq, 1 + length)
+        self._last_seq, self._last_kind, self._last_crc, self._last_size = parser.seq, kind, crc, size
         self._stream.write(self._frames.get(size))
 
     def _transaction(self, write_phase, addr, wlen, rlen):
@@ -157,16 +171,22 @@ class Bridge:
         return F.OK
 
     def _scan(self):
+        """Probe 0x08..0x77 one by one: a stuck bus answers TIMEOUT at the first address that
+        times out, instead of after a timeout for every address."""
         if self._i2c is None:
             return F.BUS_ERROR
         tx = self._tx
         for i in range(F.SCAN_BYTES):
             tx[_RESULT + i] = 0
-        try:
-            found = self._i2c.scan()
-        except OSError as exc:
-            return status_of(exc)
-        for addr in found:
+        probe = self._writes.get(0)
+        for addr in range(0x08, 0x78):
+            try:
+                self._i2c.writeto(addr, probe)
+            except OSError as exc:
+                status = status_of(exc)
+                if status == F.NACK:
+                    continue
+                return status
             tx[_RESULT + (addr >> 3)] |= 1 << (addr & 7)
         return F.OK
 

@@ -30,14 +30,23 @@ class UsbSerial:
         self._in = sys.stdin.buffer
         self._out = sys.stdout.buffer
         self._one = bytearray(1)
+        self._ready()  # ipoll allocates the tuple it reuses on its first call
 
     def readinto(self, buf):
         n = 0
-        while n < len(buf) and self._poll.poll(0):
-            self._in.readinto(self._one)
+        while n < len(buf) and self._ready():
+            if not self._in.readinto(self._one):
+                break  # end of input: readable, but nothing to read
             buf[n] = self._one[0]
             n += 1
+            if self._one[0] == 0x03:
+                break  # a possible REPL escape: what follows (mpremote's Ctrl-A) is the REPL's
         return n
+
+    def _ready(self):
+        for _ in self._poll.ipoll(0):  # ipoll reuses one result tuple: poll() builds a list
+            return True
+        return False
 
     def write(self, buf):
         self._out.write(buf)

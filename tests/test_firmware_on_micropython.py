@@ -34,3 +34,36 @@ def test_module_passes_under_micropython(module):
 
 def test_every_firmware_test_module_is_covered():
     assert MODULES, "no firmware test modules found"
+
+
+BOARD_STDIO = """
+import micropython
+from joint.debug import UsbStdio
+
+
+def poll_many(stdio, buf):
+    got = 0
+    micropython.heap_lock()
+    try:
+        for _ in range(2000):
+            got += stdio.read(buf)
+    except MemoryError:
+        got = -1
+    micropython.heap_unlock()
+    return got
+
+
+stdio = UsbStdio()
+stdio.write("read %d bytes" % poll_many(stdio, bytearray(16)))
+"""
+
+
+def test_the_board_console_reads_usb_without_waiting_or_allocating() -> None:
+    env = dict(os.environ, MICROPYPATH=str(ROOT / "firmware"))
+    process = subprocess.Popen([micropython_binary(), "-c", BOARD_STDIO], stdin=subprocess.PIPE,
+                               stdout=subprocess.PIPE, text=True, env=env, cwd=ROOT)
+    assert process.stdin is not None
+    process.stdin.write("status\n")  # and the pipe stays open: idle reads must not wait for more
+    process.stdin.flush()
+    out, _ = process.communicate(timeout=60)
+    assert out.strip() == "read 7 bytes", "-1 would mean an allocation under heap_lock"

@@ -8,7 +8,7 @@ the joint disabled, reporting why on the serial console, instead of crashing.
 from . import config
 from .clock import MonotonicClock
 from .core import JointController
-from .debug import DebugConsole, usb_reader
+from .debug import DebugConsole, UsbStdio
 from .i2c_target import I2CTargetAdapter
 from .log import Logger
 
@@ -58,15 +58,39 @@ def run(config_path=config.CONFIG_FILE):
     while not core.ready:
         core.service()
         time.sleep_ms(1)
-    join_bus(machine, core, cfg, log)
-    debug = DebugConsole(core, usb_reader(), print)
+    adapter = join_bus(machine, core, cfg, log)
+    stdio = UsbStdio()
+    log.set_writer(stdio.write)
+    debug = DebugConsole(core, stdio.read, stdio.write)
     next_ms = time.ticks_ms()
-    while True:
-        core.service()
-        debug.poll()
-        next_ms = time.ticks_add(next_ms, 1)
-        late = time.ticks_diff(time.ticks_ms(), next_ms)
-        if late > 10:
-            next_ms = time.ticks_ms()  # fell behind (e.g. a long flash write): resynchronise
-        while time.ticks_diff(next_ms, time.ticks_ms()) > 0:
-            machine.idle()
+    try:
+        while True:
+            core.service()
+            try:
+                debug.poll()
+            except Exception as exc:  # the console must never end the control loop
+                log.error("debug console: %r" % (exc,))
+            next_ms = time.ticks_add(next_ms, 1)
+            if time.ticks_diff(time.ticks_ms(), next_ms) > 10:
+                next_ms = time.ticks_ms()  # fell behind (e.g. a long flash write): resynchronise
+            while time.ticks_diff(next_ms, time.ticks_ms()) > 0:
+                machine.idle()
+    except KeyboardInterrupt:
+        # Ctrl-C (mpremote, or a stray byte): leave the joint safe before the REPL takes over,
+        # since the deadman and stall detection stop with this loop.
+        shut_down(core, adapter, log)
+        raise
+
+
+def shut_down(core, adapter, log):
+    """Stop the motor, cut its current and leave the bus."""
+    if adapter is not None:
+        adapter.deinit()
+    if core.hal is not None and not core.disabled:
+        try:
+            core.hal.stop(True)
+            core.hal.set_current(0)
+            core.hal.set_hold_current(0)
+        except Exception as exc:
+            log.error("shut down: %r" % (exc,))
+    log.warn("stopped by Ctrl-C: motor off, joint off the bus")

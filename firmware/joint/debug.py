@@ -33,25 +33,47 @@ _CHUNK = const(16)
 _LINE = const(64)
 
 
-def usb_reader():
-    """read(buf) on the board's USB serial (stdin): the bytes already waiting, never blocking."""
-    import select
-    import sys
+class UsbStdio:
+    """The board's USB serial (stdin/stdout) without ever waiting: `read(buf)` takes only bytes
+    already there, `write(line)` drops the line (counted in `dropped`) when USB cannot take it now,
+    e.g. a host that keeps the port open without reading (stdout would block up to 500 ms)."""
 
-    poller = select.poll()
-    poller.register(sys.stdin, select.POLLIN)
-    stdin = sys.stdin.buffer
-    one = bytearray(1)
+    def __init__(self):
+        import select
+        import sys
 
-    def read(buf):
+        self._in_poll = select.poll()
+        self._in_poll.register(sys.stdin, select.POLLIN)
+        self._out_poll = select.poll()
+        self._out_poll.register(sys.stdout, select.POLLOUT)
+        self._stdin = sys.stdin.buffer
+        self._stdout = sys.stdout
+        self._one = bytearray(1)
+        self.dropped = 0
+        _ready(self._in_poll)  # ipoll allocates the tuple it reuses on its first call
+        _ready(self._out_poll)
+
+    def read(self, buf):
         n = 0
-        while n < len(buf) and poller.poll(0):
-            stdin.readinto(one)
-            buf[n] = one[0]
+        while n < len(buf) and _ready(self._in_poll):
+            if not self._stdin.readinto(self._one):
+                break  # end of input: readable, but nothing to read
+            buf[n] = self._one[0]
             n += 1
         return n
 
-    return read
+    def write(self, line):
+        if _ready(self._out_poll):
+            self._stdout.write(line)
+            self._stdout.write("\n")
+        else:
+            self.dropped += 1
+
+
+def _ready(poller):
+    for _ in poller.ipoll(0):  # ipoll reuses one result tuple: poll() would build a list each call
+        return True
+    return False
 
 
 class DebugConsole:
@@ -93,7 +115,11 @@ class DebugConsole:
         if self._overflow:
             self._write("error: line longer than %d characters ignored" % _LINE)
         else:
-            words = bytes(self._line[:self._len]).decode("utf-8", "replace").split()
+            try:
+                words = bytes(self._line[:self._len]).decode().split()
+            except UnicodeError:  # MicroPython has no errors="replace"
+                words = None
+                self._write("error: not a text command")
             if words:
                 self.execute(words[0].lower(), words[1:])
         self._len = 0

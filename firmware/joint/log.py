@@ -15,6 +15,9 @@ class Logger:
         self.level = level
         self._write = write or print
 
+    def set_writer(self, write):
+        self._write = write
+
     def log(self, level, msg):
         if level <= self.level:
             self._write("%s %s %s" % (self.prefix, LEVEL_NAMES[level], msg))

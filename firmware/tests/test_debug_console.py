@@ -112,3 +112,13 @@ def test_commands_split_across_reads_are_assembled():
         console.keys.type(part)
         console.debug.poll()
     assert console.out and console.out[0].startswith("J1 at 0x11")
+
+
+def test_bytes_that_are_not_text_get_an_error_not_an_exception():
+    console = Console()
+    console.keys.waiting = b"st\xffatus\n"
+    for _ in range(5):
+        console.debug.poll()
+    assert console.out == ["error: not a text command"]
+    console.out[:] = []
+    assert console.run("log DEBUG\n") == ["log level DEBUG"], "the console still works"

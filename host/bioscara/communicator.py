@@ -134,6 +134,7 @@ class Communicator:
         self.stats = TimingStats()
         self.last: Snapshot | None = None
         self.scheduling = "not started"
+        self.thread_error: Exception | None = None
         self._subscriptions: list[Subscription] = []
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
@@ -266,9 +267,13 @@ class Communicator:
 
     def _loop(self) -> None:
         self._set_scheduling()
-        while not self._stop.is_set():
-            self._wait_next()
-            self.cycle()
+        try:
+            while not self._stop.is_set():
+                self._wait_next()
+                self.cycle()
+        except Exception as exc:  # a bug or an unexpected error: say so instead of dying silently
+            self.thread_error = exc
+            log.exception("communicator loop stopped: %s", exc)
 
     def _set_scheduling(self) -> None:
         if self.realtime_priority is None or not hasattr(os, "sched_setscheduler"):

@@ -34,6 +34,7 @@ log = logging.getLogger("bioscara.sim_server")
 
 BOOT_LIMIT_S = 10.0  # simulated seconds the joints get to finish booting before real time starts
 _TURN_S = 0.001  # longest wait for input: one simulated main-loop tick
+_MAX_CATCH_UP_US = 20_000  # per turn; below the joints' 50 ms deadman
 
 
 class Pty:
@@ -126,7 +127,8 @@ class SimServer:
         self.bus = SimJointBus(self.clock, bus_hz=speed_hz)
         self._ptys: list[Pty] = []
         self._bridge_pty = self._pty()
-        self.bridge = Bridge(SimI2C(self.bus), self._bridge_pty, MonotonicClock(), speed_hz)
+        # No REPL escape: there is no REPL behind the pty, and a stray CR + Ctrl-C must not end it.
+        self.bridge = Bridge(SimI2C(self.bus), self._bridge_pty, MonotonicClock(), speed_hz, repl_escape=False)
         self.joint_paths: dict[str, str] = {}
         self._consoles: list[DebugConsole] = []
         for i, spec in enumerate(specs):
@@ -161,7 +163,14 @@ class SimServer:
         wall_start = time.monotonic()
         sim_start = self.clock.now_us
         while not self._stop.is_set():
-            self.bus.run_until(sim_start + int((time.monotonic() - wall_start) * 1e6))
+            target = sim_start + int((time.monotonic() - wall_start) * 1e6)
+            behind = target - self.clock.now_us
+            if behind > _MAX_CATCH_UP_US:
+                # This process was held up: let simulated time slip rather than replay the pause
+                # as silence on the bus, which the joints' deadman would take for a lost host.
+                sim_start -= behind - _MAX_CATCH_UP_US
+                target = self.clock.now_us + _MAX_CATCH_UP_US
+            self.bus.run_until(target)
             select.select(fds, [], [], _TURN_S)
             self.bridge.poll()
             for console in self._consoles:

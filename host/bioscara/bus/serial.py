@@ -11,6 +11,8 @@ disappears (the bridge was reset or unplugged) is reopened by the next transfer.
 from __future__ import annotations
 
 import errno
+import os
+import termios
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -23,7 +25,9 @@ from ..hil_bridge import framing as F
 from ..serial_port import DEFAULT_BAUD, open_port
 from .base import Bus
 
-DEFAULT_TIMEOUT_S = 0.1  # per attempt; above the bridge's own I2C timeout (50 ms by default)
+DEFAULT_TIMEOUT_S = 0.25  # per attempt; a transaction can take two bridge I2C timeouts (2 x 50 ms)
+SCAN_TIMEOUT_S = 2.0  # a healthy scan of 112 addresses; a stuck bus answers TIMEOUT sooner
+_PORT_ERRORS = (serial.SerialException, OSError, termios.error)  # a hung-up tty raises termios.error
 _READ_SLICE = 4  # reads wait at most timeout/_READ_SLICE, so the deadline is kept within 25 %
 
 # Bridge status -> errno of the OSError the base class retries and reports (Linux adapters' codes).
@@ -75,7 +79,11 @@ class SerialBus(Bus):
         self._parser = F.FrameParser()
         self._stats = SerialLinkStats()
         self._frame = bytearray(F.MAX_FRAME)
-        self._seq = 0
+        # One sequence number per transfer, shared by its retries, so the bridge recognises a retry
+        # and replays its answer instead of doing the I2C work again (a HOME or a relative move
+        # twice). A random start keeps a new process from matching the previous one's last request.
+        self._seq = os.urandom(1)[0]
+        self._fresh_seq = True
         self._serial: serial.Serial | None = open_port(port, baud=baud, timeout=timeout / _READ_SLICE)
         try:
             self.version = self._handshake()
@@ -113,13 +121,15 @@ class SerialBus(Bus):
                             f"this host {F.PROTOCOL}: flash the bridge firmware of this release")
         return BridgeVersion(data[0], (data[1], data[2], data[3]), data[4], int.from_bytes(data[5:9], "little"))
 
-    def _ask(self, kind: int, payload: bytes, accept: tuple[int, ...]) -> tuple[int, bytes]:
+    def _ask(self, kind: int, payload: bytes, accept: tuple[int, ...],
+             timeout: float | None = None) -> tuple[int, bytes]:
         """A request outside the base class's retries: up to `attempts` tries for a status in `accept`."""
         problem = ""
         with self._lock:
+            self._fresh_seq = True
             for _ in range(self.attempts):
                 try:
-                    status, data = self._request(kind, payload)
+                    status, data = self._request(kind, payload, timeout)
                 except (OSError, TimeoutError) as exc:
                     problem = str(exc)
                     continue
@@ -148,6 +158,11 @@ class SerialBus(Bus):
 
     # ---- transactions ----
 
+    def transfer(self, addr: int, write: bytes | None, read_len: int) -> bytes:
+        with self._lock:
+            self._fresh_seq = True
+            return super().transfer(addr, write, read_len)
+
     def _transfer_once(self, addr: int, write: bytes | None, read_len: int) -> bytes:
         self._check(addr, write, read_len)
         if write is None:
@@ -163,7 +178,7 @@ class SerialBus(Bus):
 
     def scan(self, first: int = 0x08, last: int = 0x77) -> list[int]:
         """Addresses that acknowledge, from one SCAN request (the bridge scans 0x08..0x77)."""
-        _, bitmap = self._ask(F.SCAN, b"", (F.OK,))
+        _, bitmap = self._ask(F.SCAN, b"", (F.OK,), SCAN_TIMEOUT_S)
         if len(bitmap) != F.SCAN_BYTES:
             raise CommError(f"the bridge on {self.port} sent a {len(bitmap)}-byte SCAN answer")
         return [a for a in range(first, last + 1) if bitmap[a >> 3] & (1 << (a & 7))]
@@ -186,10 +201,13 @@ class SerialBus(Bus):
 
     # ---- the serial link ----
 
-    def _request(self, kind: int, payload: bytes) -> tuple[int, bytes]:
+    def _request(self, kind: int, payload: bytes, timeout: float | None = None) -> tuple[int, bytes]:
         """Send one request, return (status, data) of its answer; TimeoutError if none comes."""
         port = self._connected()
-        self._seq = (self._seq + 1) & 0xFF
+        if self._fresh_seq:
+            self._seq = (self._seq + 1) & 0xFF
+            self._fresh_seq = False
+        timeout = self.timeout if timeout is None else timeout
         frame = self._frame
         frame[F.HEADER:F.HEADER + len(payload)] = payload
         size = F.seal(frame, kind, self._seq, len(payload))
@@ -198,14 +216,14 @@ class SerialBus(Bus):
             port.reset_input_buffer()  # nothing received before the request can answer it
             parser.reset()
             port.write(frame[:size])
-        except (serial.SerialException, OSError) as exc:
+        except _PORT_ERRORS as exc:
             raise self._lost(exc) from None
         self._stats.requests += 1
-        deadline = time.monotonic() + self.timeout
+        deadline = time.monotonic() + timeout
         while True:
             try:
                 chunk = port.read(port.in_waiting or 1)
-            except (serial.SerialException, OSError) as exc:
+            except _PORT_ERRORS as exc:
                 raise self._lost(exc) from None
             if not chunk and parser.partial:
                 parser.expire()  # a silent stretch inside a frame: it was truncated
@@ -214,7 +232,7 @@ class SerialBus(Bus):
                 return answer
             if time.monotonic() >= deadline:
                 self._stats.timeouts += 1
-                raise TimeoutError(f"no answer from the bridge within {self.timeout * 1000:.0f} ms")
+                raise TimeoutError(f"no answer from the bridge within {timeout * 1000:.0f} ms")
 
     def _answer_in(self, chunk: bytes, kind: int) -> tuple[int, bytes] | None:
         """Feed `chunk` to the parser; (status, data) of the answer to the current request, if any."""
@@ -246,7 +264,7 @@ class SerialBus(Bus):
         if self._serial is not None:
             try:
                 self._serial.close()
-            except (serial.SerialException, OSError):
+            except _PORT_ERRORS:
                 pass
             self._serial = None
         return OSError(errno.EIO, f"serial port {self.port} failed: {exc}")

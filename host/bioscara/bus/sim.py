@@ -37,6 +37,7 @@ class SimJointSpec:
     min: float
     max: float
     start: float
+    deadman_ms: int = 50  # the joint firmware's own setting (its per-joint config)
 
     def motor_degrees(self, position: float) -> float:
         return math.degrees(self.reduction * (position - self.start))
@@ -49,8 +50,8 @@ def build_joint(spec: SimJointSpec, clock: VirtualClock, seed: int, port: str,
     stepper = SimStepper(clock, seed=seed)
     low, high = sorted((spec.motor_degrees(spec.min), spec.motor_degrees(spec.max)))
     stepper.set_end_stops(low, high)
-    cfg = firmware_config.parse({"joint": spec.firmware_joint, "address": spec.address},
-                                f"simulated {spec.firmware_joint}")
+    cfg = firmware_config.parse({"joint": spec.firmware_joint, "address": spec.address,
+                                 "deadman_ms": spec.deadman_ms}, f"simulated {spec.firmware_joint}")
     return SimJoint(cfg, clock, stepper, port=port, write=write)
 
 
