@@ -43,10 +43,6 @@ def homed_arm(realtime: bool = False):  # type: ignore[no-untyped-def]
     config = load_config()
     config = replace(config, sim=replace(config.sim, realtime=realtime))
     bus = open_arm_bus(config)
-    if not realtime:
-        bus.sleep(2.0)
-    else:
-        time.sleep(2.5)
     arm = open_arm(config, bus)
     arm.configure()
     arm.activate()

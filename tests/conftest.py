@@ -41,7 +41,6 @@ def config() -> ArmConfig:
 def bus(config: ArmConfig) -> Iterator[SimBus]:
     bus = open_arm_bus(config)
     assert isinstance(bus, SimBus)
-    bus.run_for(2.0)  # the simulated joints boot (orientation check) before they answer
     yield bus
     bus.close()
 

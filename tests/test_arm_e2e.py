@@ -141,7 +141,6 @@ def test_a_joint_reboot_is_detected_and_motion_refused_until_rehomed(arm: Arm, c
 def test_a_missing_joint_is_a_comm_error_after_retries_and_nothing_changes(config: ArmConfig) -> None:
     specs = [spec for spec in sim_joint_specs(config) if spec.address != 0x14]
     bus = SimBus(specs)
-    bus.run_for(2.0)
     arm = Arm(config, bus)
     with pytest.raises(CommError, match="0x14"):
         arm.configure()
@@ -243,7 +242,6 @@ def test_a_collision_during_a_position_move_stops_the_arm(config: ArmConfig) -> 
     slow = replace(config.joints["j1"], max_velocity=0.36)  # 120 motor RPM, see the README on stalls
     config = replace(config, joints={**config.joints, "j1": slow})
     bus = open_arm_bus(config)
-    bus.run_for(2.0)
     arm = Arm(config, bus)
     comm = Communicator(arm, frequency=100.0, realtime_priority=None)
     _home_all(arm, comm)

@@ -64,7 +64,6 @@ class SimClockSMBus(SMBusBus):
 @pytest.fixture
 def wire() -> tuple[Joint, FakeSMBus]:
     sim = SimBus([J2])
-    sim.run_for(2.0)
     fake = FakeSMBus(sim)
     SimClockSMBus.sim = sim
     bus = SimClockSMBus(1, smbus_factory=lambda _: fake)

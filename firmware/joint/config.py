@@ -163,12 +163,11 @@ def _parse_motor(cfg, motor):
         cfg.errors.append("%s: motor.backend = %r is not one of %s" % (cfg.source, backend, ", ".join(BACKENDS)))
         return
     if backend == "pico":
-        from .pico.motor import validate_motor_config
+        from .pico.motor import is_i2c_pin, validate_motor_config
         bus = cfg.i2c
-        # rp2: GPIO n belongs to I2C (n // 2) % 2, as SDA when n is even, SCL when odd.
-        for key, parity, role in (("sda", 0, "SDA"), ("scl", 1, "SCL")):
+        for key, scl, role in (("sda", False, "SDA"), ("scl", True, "SCL")):
             pin = getattr(bus, key)
-            if pin % 2 != parity or (pin // 2) % 2 != bus.bus:
+            if not is_i2c_pin(pin, bus.bus, scl):
                 cfg.errors.append("%s: i2c.%s = %d is not an %s pin of I2C%d on the Pico"
                                   % (cfg.source, key, pin, role, bus.bus))
         for problem in validate_motor_config(motor, {"bus": bus.bus, "sda": bus.sda, "scl": bus.scl}):

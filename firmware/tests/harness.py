@@ -174,8 +174,7 @@ class SimRig:
         self.joint = make_joint(joint, self.clock, self.stepper, write=self.lines.append)
         self.bus = SimJointBus(self.clock, (self.joint,))
         self.addr = self.joint.cfg.address
-        self.bus.sleep(2.0)
-        assert self.joint.online, "joint did not finish booting"
+        assert self.bus.boot(), "joint did not finish booting"
 
     @property
     def flags(self):

@@ -64,6 +64,16 @@ class LifecycleError(BioscaraError):
     """A lifecycle transition was asked for from the wrong state."""
 
 
+def activate_joint(joint: Joint, config: JointConfig) -> None:
+    """Enable with the configured currents, then stall detection (after SETUP, which turns it
+    off) if the threshold is set, then the motion limits: the original's activate_joint."""
+    joint.enable(config.drive_current, config.hold_current)
+    if config.stall_threshold > 0:
+        joint.enable_stallguard(config.stall_threshold)
+    joint.set_max_acceleration(config.max_acceleration)
+    joint.set_max_velocity(config.max_velocity)
+
+
 def make_joint(config: JointConfig, bus: Bus) -> Joint:
     return Joint(config.name, config.address, bus, reduction=config.reduction, min=config.min,
                  max=config.max, max_velocity=config.max_velocity)
@@ -188,12 +198,7 @@ class Arm:
     # ---- per-joint helpers (the original's activate_joint / deactivate_joint / homing) ----
 
     def _activate_joint(self, aj: ArmJoint) -> None:
-        jc, joint = aj.config, aj.joint
-        joint.enable(jc.drive_current, jc.hold_current)
-        if jc.stall_threshold > 0:
-            joint.enable_stallguard(jc.stall_threshold)
-        joint.set_max_acceleration(jc.max_acceleration)
-        joint.set_max_velocity(jc.max_velocity)
+        activate_joint(aj.joint, aj.config)
 
     def _deactivate_joint(self, aj: ArmJoint) -> None:
         aj.joint.disable()
@@ -365,9 +370,23 @@ class Arm:
             raise InvalidArgumentError(f"unknown command interface {name!r} "
                                        "(use <joint>/position, /velocity or /home)") from None
 
-    def set_command(self, joint: str, mode: str, value: float) -> None:
-        """Set a command value (it is sent by the next `write` if that mode is active)."""
+    def check_command(self, joint: str, mode: str, value: float) -> None:
+        """InvalidArgumentError if the joint would refuse `value` at the next write (which would
+        fault the arm): non-finite, outside the limits, or a home trigger other than +1/-1/0."""
+        j = self[joint].joint
         if not math.isfinite(value):
             raise InvalidArgumentError(f"{mode} command must be finite, got {value}", joint=joint)
+        if mode == Mode.POSITION.value and not j.min <= value <= j.max:
+            raise InvalidArgumentError(f"position {value:g} is outside [{j.min:g}, {j.max:g}]", joint=joint)
+        if mode == Mode.VELOCITY.value and abs(value) > j.max_velocity:
+            raise InvalidArgumentError(f"|velocity| {abs(value):g} exceeds max_velocity {j.max_velocity:g}",
+                                       joint=joint)
+        if mode == Mode.HOME.value and value not in (-1.0, 0.0, 1.0):
+            raise InvalidArgumentError(f"home takes +1, -1 (toward that end stop) or 0 (abort), got {value:g}",
+                                       joint=joint)
+
+    def set_command(self, joint: str, mode: str, value: float) -> None:
+        """Set a command value (it is sent by the next `write` if that mode is active)."""
+        self.check_command(joint, mode, value)
         with self._lock:
             setattr(self[joint].command, Mode(mode).value, float(value))

@@ -21,7 +21,7 @@ import os
 import threading
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 
 from .arm import Arm, Lifecycle
 from .errors import BioscaraError, InvalidArgumentError
@@ -153,13 +153,9 @@ class Communicator:
         self._subscriptions.remove(subscription)
 
     def link_health(self) -> dict[str, dict[str, object]]:
-        """Per joint: transactions, failed attempts, transactions lost after retries, last error."""
-        health = {}
-        for name, aj in self.arm.joints.items():
-            link = self.bus.stats.link(aj.config.address)
-            health[name] = {"transactions": link.transactions, "failed_attempts": link.failed_attempts,
-                            "comm_errors": link.comm_errors, "last_error": link.last_error}
-        return health
+        """Per joint, its bus.LinkStats: transactions, failed attempts, transactions lost after
+        retries (comm_errors), bits, last error."""
+        return {name: asdict(self.bus.stats.link(aj.config.address)) for name, aj in self.arm.joints.items()}
 
     # ---- the cycle ----
 

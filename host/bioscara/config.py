@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from .errors import ConfigError
+from .transmission import Transmission
 
 JointType = Literal["revolute", "prismatic"]
 
@@ -286,7 +287,6 @@ def _joints(p: _Problems, top: dict[str, Any]) -> dict[str, JointConfig]:
 
 def _check_motor_side(p: _Problems, jc: JointConfig, path: str) -> bool:
     """What the joint values become at the motor must be what the protocol accepts (protocol.py)."""
-    from .transmission import Transmission
     t = Transmission(jc.reduction)
     ok = True
     rpm = abs(t.motor_rpm(jc.homing.speed))

@@ -24,7 +24,7 @@ from rich.text import Text
 from . import trace_plot
 from .errors import CommError
 from .firmware.debug import TRACE_COLUMNS, TRACE_UNITS
-from .serial_port import DEFAULT_BAUD, open_port
+from .serial_port import DEFAULT_BAUD, PORT_ERRORS, open_port
 
 CSV_HEADER = ("time_s",) + TRACE_COLUMNS
 PLOT_COLUMNS = ("despiked", "filtered", "threshold")  # the stall decision: error against threshold
@@ -108,7 +108,7 @@ class JointConsole:
                 raise CommError(f"{self.path} is not connected (waiting for it to come back)")
             try:
                 self._port.write(command.encode() + b"\n")
-            except (serial.SerialException, OSError) as exc:
+            except PORT_ERRORS as exc:
                 raise CommError(f"cannot send to {self.path}: {exc}") from None
 
     def samples(self, seconds: float | None = None) -> list[TraceSample]:
@@ -173,7 +173,7 @@ class JointConsole:
                 continue
             try:
                 chunk = port.read(port.in_waiting or 1)
-            except (serial.SerialException, OSError) as exc:
+            except PORT_ERRORS as exc:
                 self._lost(exc)
                 pending.clear()
                 continue
@@ -202,7 +202,7 @@ class JointConsole:
             if self._port is not None:
                 try:
                     self._port.close()
-                except OSError:
+                except PORT_ERRORS:
                     pass  # already gone with the device
                 self._port = None
         self._on_line(f"console: {self.path} lost ({exc}); waiting for it to come back")

@@ -44,7 +44,6 @@ def run(config: ArmConfig | None = None, console: Console | None = None) -> list
     gripper = open_gripper(config, clock=arm.bus.monotonic)
     steps: list[Step] = []
     try:
-        arm.bus.sleep(2.0)  # the joints boot (orientation check) before they answer
         arm.configure()
         arm.activate()
         console.print(f"[bold]arm active[/] on {arm.bus.describe()}, homing {', '.join(arm.joints)} ...")

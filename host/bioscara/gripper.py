@@ -29,6 +29,7 @@ from typing import ClassVar, Self
 
 from .config import GripperConfig
 from .errors import BioscaraError, CommError, InvalidArgumentError, NotEnabledError, NotInitError
+from .paths import default_state_dir
 from .pwm import DEFAULT_ROOT, SysfsPWM
 
 log = logging.getLogger("bioscara.gripper")
@@ -42,13 +43,6 @@ def servo_pulse_us(config: GripperConfig, width: float) -> float:
     """Servo pulse on-time in µs for a width in m, clamped to the servo's pulse range."""
     angle = config.reduction * (width - config.offset)  # degrees
     return min(max(angle / 90.0 * 500.0 + 1500.0, config.servo_min_us), config.servo_max_us)
-
-
-def default_state_dir() -> Path:
-    """$XDG_STATE_HOME/bioscara, or ~/.local/state/bioscara when it is unset or not absolute."""
-    xdg = os.environ.get("XDG_STATE_HOME", "")
-    base = Path(xdg) if os.path.isabs(xdg) else Path.home() / ".local" / "state"
-    return base / "bioscara"
 
 
 class BaseGripper:

@@ -136,6 +136,32 @@ import {module}
 """
 
 
+# Runs on the board: "PATH SHA256" for every file at or below each root (missing roots: nothing).
+HASH_TREES = """
+import os, hashlib, binascii
+def _walk(p):
+    try:
+        m = os.stat(p)[0]
+    except OSError:
+        return
+    if m & 0x4000:
+        for n in os.listdir(p):
+            _walk(p + '/' + n)
+        return
+    h = hashlib.sha256()
+    b = bytearray(512)
+    with open(p, 'rb') as f:
+        while True:
+            n = f.readinto(b)
+            if not n:
+                break
+            h.update(b[:n])
+    print(p, binascii.hexlify(h.digest()).decode())
+for _r in {roots!r}:
+    _walk(_r)
+"""
+
+
 def parse_probe(output: str) -> BoardInfo:
     """The BoardInfo from PROBE's output."""
     try:
@@ -190,24 +216,16 @@ class MpremoteBoard:
         return parse_probe(self._exec(PROBE, "probing the board"))
 
     def hashes(self, paths: Iterable[str]) -> dict[str, str]:
+        # One script walks and hashes everything on the board: a round trip per file (stat, then
+        # hash) would cost a flash a hundred USB round trips.
+        roots = [self._path(path) for path in paths]
+        output = self._exec(HASH_TREES.format(roots=roots), "reading the files")
         found: dict[str, str] = {}
-        try:
-            for path in paths:
-                self._hash_tree(path, found)
-        except (OSError, *self._errors) as exc:
-            raise FlashError(f"reading the files on {self.port} failed: {_last_line(exc)}") from None
+        for line in output.splitlines():
+            path, _, digest = line.rpartition(" ")
+            if path.startswith(self._root):
+                found["/" + path[len(self._root):]] = digest
         return found
-
-    def _hash_tree(self, path: str, found: dict[str, str]) -> None:
-        try:
-            mode = self._transport.fs_stat(self._path(path)).st_mode
-        except OSError:
-            return  # missing
-        if mode & 0x4000:
-            for entry in self._transport.fs_listdir(self._path(path)):
-                self._hash_tree(f"{path}/{entry.name}", found)
-        else:
-            found[path] = self._transport.fs_hashfile(self._path(path), "sha256").hex()
 
     def write(self, path: str, data: bytes, progress: Callable[[int], None] | None = None) -> None:
         try:

@@ -13,6 +13,14 @@ from .errors import CommError
 
 DEFAULT_BAUD = 115200  # irrelevant for USB CDC and pseudo-terminals; real UARTs need the right one
 
+try:
+    import termios
+    # What using an open port can raise: pyserial's SerialException is an OSError; a tty that
+    # hung up (board reset, unplugged) raises termios.error from tcflush and friends.
+    PORT_ERRORS: tuple[type[BaseException], ...] = (OSError, termios.error)
+except ImportError:  # Windows
+    PORT_ERRORS = (OSError,)
+
 
 def open_port(path: str, *, baud: int = DEFAULT_BAUD, timeout: float | None = 0.1) -> serial.Serial:
     """Open `path` in exclusive mode (raw, no echo); `timeout` in s bounds each read."""

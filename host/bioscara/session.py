@@ -6,14 +6,14 @@ import argparse
 import json
 import sys
 from dataclasses import replace
-from typing import Any
+from typing import Any, Callable
 
 from rich.console import Console
 
 from .arm import Arm, make_joint
 from .bus import Bus
 from .config import ArmConfig, load_config
-from .errors import InvalidArgumentError
+from .errors import BioscaraError, InvalidArgumentError
 from .hardware import open_arm, open_arm_bus
 from .joint import Joint
 
@@ -44,8 +44,6 @@ class Session:
     def bus(self) -> Bus:
         if self._bus is None:
             self._bus = open_arm_bus(self.config)
-            if self._bus.scheme == "sim" and not getattr(self._bus, "realtime", False):
-                self._bus.sleep(2.0)  # simulated joints boot (orientation check) before they answer
         return self._bus
 
     @property
@@ -61,6 +59,17 @@ class Session:
         joint = make_joint(self.config.joints[name], self.bus)
         joint.init()
         return joint
+
+    def each_joint(self, names: list[str], action: Callable[[Joint], object], done: str) -> dict[str, str]:
+        """`action` on every named joint, going on past one that fails: name -> `done` or "FAILED: why"."""
+        results = {}
+        for name in names:
+            try:
+                action(self.joint(name))
+                results[name] = done
+            except BioscaraError as exc:
+                results[name] = f"FAILED: {exc}"
+        return results
 
     def emit(self, data: Any, human: Any = None) -> None:
         """Print `data` as JSON with --json, else `human` (a rich renderable or text) or `data`."""

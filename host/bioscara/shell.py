@@ -384,8 +384,8 @@ class Shell:
         names = self._joint_names(args[0])
         mode = _mode(args[1].lower())
         value = _number(args[2], "VALUE")
-        for name in names:
-            _check_command(self.arm[name].joint, mode, value)
+        for name in names:  # all of them first: `set all` changes every joint or none
+            self.arm.check_command(name, mode.value, value)
         for name in names:
             self.arm.set_command(name, mode.value, value)
         idle = [name for name in names if mode not in self.arm[name].modes]
@@ -529,16 +529,6 @@ def _mode(word: str) -> Mode:
         return Mode(word)
     except ValueError:
         raise ShellError(f"no command mode {word!r}; use {', '.join(m.value for m in Mode)}") from None
-
-
-def _check_command(joint: Joint, mode: Mode, value: float) -> None:
-    """The limits the joint would enforce at the next write, checked now so a typo cannot fault the arm."""
-    if mode is Mode.POSITION and not joint.min <= value <= joint.max:
-        raise ShellError(f"{joint.name}: position {value:g} is outside [{joint.min:g}, {joint.max:g}]")
-    if mode is Mode.VELOCITY and abs(value) > joint.max_velocity:
-        raise ShellError(f"{joint.name}: |velocity| {abs(value):g} exceeds max_velocity {joint.max_velocity:g}")
-    if mode is Mode.HOME and value not in (-1.0, 0.0, 1.0):
-        raise ShellError(f"{joint.name}: home takes +1, -1 (toward that end stop) or 0 (abort), got {value:g}")
 
 
 def _register(word: str) -> P.Register:

@@ -32,7 +32,6 @@ from .hil_bridge.bridge import Bridge
 
 log = logging.getLogger("bioscara.sim_server")
 
-BOOT_LIMIT_S = 10.0  # simulated seconds the joints get to finish booting before real time starts
 _TURN_S = 0.001  # longest wait for input: one simulated main-loop tick
 _MAX_CATCH_UP_US = 20_000  # per turn; below the joints' 50 ms deadman
 
@@ -140,7 +139,7 @@ class SimServer:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self.error: BaseException | None = None
-        self._boot()
+        self.bus.boot()  # in virtual time, so clients find the joints on the bus
 
     @property
     def bridge_path(self) -> str:
@@ -150,12 +149,6 @@ class SimServer:
         pty = Pty()
         self._ptys.append(pty)
         return pty
-
-    def _boot(self) -> None:
-        """Run the boot sequences in virtual time, so clients find the joints on the bus."""
-        deadline = self.clock.now_us + int(BOOT_LIMIT_S * 1e6)
-        while self.clock.now_us < deadline and not all(j.online for j in self.bus.joints):
-            self.bus.sleep(0.01)
 
     def serve_forever(self) -> None:
         """Follow the wall clock and serve the terminals until `stop()` (or KeyboardInterrupt)."""

@@ -389,6 +389,11 @@ def _uart_of(pin):
     return ((pin // 4 + 1) // 2) % 2
 
 
+def is_i2c_pin(pin, bus, scl):
+    """rp2: GPIO n belongs to I2C (n // 2) % 2, as SDA when n is even, SCL when odd."""
+    return pin % 2 == (1 if scl else 0) and (pin // 2) % 2 == bus
+
+
 def _pins_for(ok):
     return ", ".join("GP%d" % p for p in range(30) if ok(p))
 
@@ -432,11 +437,11 @@ def validate_motor_config(cfg, joint_bus=None):
         errors.append("uart_rx = %d is not an RX pin of UART%d (use %s)"
                       % (c["uart_rx"], uart, _pins_for(lambda p: p % 4 == 1 and _uart_of(p) == uart)))
     bus = c["encoder_i2c"]
-    for key, parity, role in (("encoder_sda", 0, "SDA"), ("encoder_scl", 1, "SCL")):
+    for key, scl, role in (("encoder_sda", False, "SDA"), ("encoder_scl", True, "SCL")):
         pin = c[key]
-        if pin % 2 != parity or (pin // 2) % 2 != bus:
+        if not is_i2c_pin(pin, bus, scl):
             errors.append("%s = %d is not an %s pin of I2C%d (use %s)" % (
-                key, pin, role, bus, _pins_for(lambda p: p % 2 == parity and (p // 2) % 2 == bus)))
+                key, pin, role, bus, _pins_for(lambda p: is_i2c_pin(p, bus, scl))))
     joint = JOINT_BUS if joint_bus is None else joint_bus
     if bus == joint["bus"]:
         errors.append("encoder_i2c = %d is the joint bus (I2C%d is the I2C target); use the other one"

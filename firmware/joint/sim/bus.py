@@ -47,6 +47,16 @@ class SimJointBus:
     def sleep(self, seconds):
         self.run_until(self.clock.now_us + int(seconds * 1e6 + 0.5))
 
+    def boot(self, limit_s=10.0):
+        """Run until every joint has finished its boot sequence and joined the bus (True), or
+        `limit_s` simulated seconds have passed (False)."""
+        deadline = self.clock.now_us + int(limit_s * 1e6)
+        while not all(joint.online for joint in self.joints):
+            if self.clock.now_us >= deadline:
+                return False
+            self.sleep(0.01)
+        return True
+
     def _spend(self, bits):
         self.bits += bits
         self._fraction_us += bits * 1e6 / self.bus_hz

@@ -1,9 +1,10 @@
 """The HIL bridge transport: `serial:/dev/ttyACM0`, a USB MicroPython board running hil_bridge as
 I2C controller, or the simulator server's pseudo-terminal (`bioscara sim --pty`).
 
-One request is outstanding at a time. Every attempt gets a new sequence number, and input older
-than the request is discarded before it is sent, so an answer is only ever taken for the request
-it answers; late answers to earlier attempts are counted as stale and dropped. Garbage, corrupted
+One request is outstanding at a time. Every transfer gets a new sequence number, kept by its
+retries (the bridge answers a repeated request from its cache instead of running it again), and
+input older than the request is discarded before it is sent, so an answer is only ever taken for
+the transfer it answers; late answers to earlier transfers are counted as stale and dropped. Garbage, corrupted
 and truncated frames are skipped by the shared frame parser (counted in `link`). A port that
 disappears (the bridge was reset or unplugged) is reopened by the next transfer.
 """
@@ -12,7 +13,6 @@ from __future__ import annotations
 
 import errno
 import os
-import termios
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -22,12 +22,11 @@ import serial
 
 from ..errors import CommError, ConfigError, InvalidArgumentError
 from ..hil_bridge import framing as F
-from ..serial_port import DEFAULT_BAUD, open_port
+from ..serial_port import DEFAULT_BAUD, PORT_ERRORS, open_port
 from .base import Bus
 
 DEFAULT_TIMEOUT_S = 0.25  # per attempt; a transaction can take two bridge I2C timeouts (2 x 50 ms)
 SCAN_TIMEOUT_S = 2.0  # a healthy scan of 112 addresses; a stuck bus answers TIMEOUT sooner
-_PORT_ERRORS = (serial.SerialException, OSError, termios.error)  # a hung-up tty raises termios.error
 _READ_SLICE = 4  # reads wait at most timeout/_READ_SLICE, so the deadline is kept within 25 %
 
 # Bridge status -> errno of the OSError the base class retries and reports (Linux adapters' codes).
@@ -49,7 +48,7 @@ class SerialLinkStats:
 
     requests: int = 0
     timeouts: int = 0  # attempts with no matching answer in time
-    stale: int = 0  # answers to an earlier attempt, dropped by sequence number
+    stale: int = 0  # answers to an earlier transfer, dropped by sequence number
     crc_errors: int = 0
     bad_lengths: int = 0
     truncated: int = 0  # frames that stopped half way
@@ -216,14 +215,14 @@ class SerialBus(Bus):
             port.reset_input_buffer()  # nothing received before the request can answer it
             parser.reset()
             port.write(frame[:size])
-        except _PORT_ERRORS as exc:
+        except PORT_ERRORS as exc:
             raise self._lost(exc) from None
         self._stats.requests += 1
         deadline = time.monotonic() + timeout
         while True:
             try:
                 chunk = port.read(port.in_waiting or 1)
-            except _PORT_ERRORS as exc:
+            except PORT_ERRORS as exc:
                 raise self._lost(exc) from None
             if not chunk and parser.partial:
                 parser.expire()  # a silent stretch inside a frame: it was truncated
@@ -264,7 +263,7 @@ class SerialBus(Bus):
         if self._serial is not None:
             try:
                 self._serial.close()
-            except _PORT_ERRORS:
+            except PORT_ERRORS:
                 pass
             self._serial = None
         return OSError(errno.EIO, f"serial port {self.port} failed: {exc}")

@@ -67,6 +67,7 @@ class SimBus(Bus):
         self.specs = {spec.address: spec for spec in joints}
         for i, spec in enumerate(joints):
             self.sim.add(build_joint(spec, self.clock, seed + i, port, log.info))
+        self.sim.boot()  # in virtual time: the joints answer from the first transfer on
         self._wall_start = time.monotonic()
         self._virtual_start = self.clock.now_us
 
@@ -117,6 +118,6 @@ class SimBus(Bus):
         return self.clock.now_us / 1e6
 
     def run_for(self, seconds: float) -> None:
-        """Advance the simulation (virtual mode), e.g. to let the joints boot."""
+        """Advance the simulation (virtual mode), e.g. while a rebooted joint boots again."""
         with self._lock:
             self.sim.sleep(seconds)

@@ -20,7 +20,7 @@ from typing import Any
 from ..console import PLOT_COLUMNS, JointConsole, plot
 from ..errors import BioscaraError, InvalidArgumentError
 from ..firmware.debug import TRACE_COLUMNS
-from ..gripper import default_state_dir
+from ..paths import default_state_dir
 from ..serial_port import DEFAULT_BAUD
 from ..session import Session
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from ..errors import BioscaraError
+from ..arm import activate_joint
 from ..session import Session
 
 
@@ -20,25 +20,15 @@ def enable(args: argparse.Namespace, session: Session) -> int:
     done = []
     for name in selected(session, args.joints):
         joint = session.joint(name)
-        jc = session.config.joints[name]
-        joint.enable(jc.drive_current, jc.hold_current)
-        if jc.stall_threshold > 0:
-            joint.enable_stallguard(jc.stall_threshold)
-        joint.set_max_acceleration(jc.max_acceleration)
-        joint.set_max_velocity(jc.max_velocity)
+        activate_joint(joint, session.config.joints[name])
         done.append({"joint": name, "homed": joint.is_homed()})
     session.emit(done, "\n".join(f"{d['joint']}: enabled{'' if d['homed'] else ' (not homed)'}" for d in done))
     return 0
 
 
 def disable(args: argparse.Namespace, session: Session) -> int:
-    results: dict[str, str] = {}
-    for name in selected(session, args.joints):
-        try:  # disable the others even if one does not answer
-            session.joint(name).disable()
-            results[name] = "disabled (freewheeling)"
-        except BioscaraError as exc:
-            results[name] = f"FAILED: {exc}"
+    results = session.each_joint(selected(session, args.joints), lambda joint: joint.disable(),
+                                 "disabled (freewheeling)")
     session.emit([{"joint": name, "result": result} for name, result in results.items()],
                  "\n".join(f"{name}: {result}" for name, result in results.items()))
     return 0 if all(not r.startswith("FAILED") for r in results.values()) else 1

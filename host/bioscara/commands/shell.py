@@ -17,9 +17,8 @@ from typing import Any
 
 from ..arm import Arm, Lifecycle
 from ..bus import Bus
-from ..bus.sim import SimBus
 from ..config import ArmConfig
-from ..gripper import default_state_dir
+from ..paths import default_state_dir
 from ..hardware import open_arm, open_arm_bus
 from ..session import Session
 from ..shell import Shell
@@ -27,7 +26,6 @@ from ..shell import Shell
 NAME = "shell"
 HELP = "interactive console: communicator, arm lifecycle, command modes, registers (`help` inside)"
 
-BOOT_TIMEOUT_S = 5.0  # simulated joints join the bus after their boot sequence (about 0.6 s)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -74,15 +72,10 @@ def run(args: argparse.Namespace, session: Session) -> int:
 
 
 def open_context(config: ArmConfig) -> Context:
-    """Open the configured bus (the simulator in real time) and the arm; wait for simulated joints to boot."""
+    """Open the configured bus (the simulator in real time) and the arm."""
     if config.bus_url.startswith("sim:"):
         config = replace(config, sim=replace(config.sim, realtime=True))
     bus = open_arm_bus(config)
-    if isinstance(bus, SimBus):
-        deadline = bus.monotonic() + BOOT_TIMEOUT_S
-        while bus.monotonic() < deadline and not all(bus.joint(jc.address).online
-                                                      for jc in config.joints.values()):
-            bus.sleep(0.05)
     return Context(config, bus, open_arm(config, bus))
 
 
