@@ -92,3 +92,20 @@ def communicator_realtime(rate: float, seconds: float = 3.0) -> dict[str, float]
     return {"rate": s.rate, "jitter_us": s.jitter * 1e6, "overruns": s.overruns, "cycles": s.cycles,
             "host_share": (cpu - meter.seconds) / wall, "sim_share": meter.seconds / wall,
             "scheduling": comm.scheduling}
+
+
+def bridge_throughput(transactions: int = 2000) -> dict[str, float]:
+    """PING transactions per second through the HIL bridge framing on the simulator's pty."""
+    from bioscara.bus import open_bus
+    from bioscara.firmware import protocol as P
+    from bioscara.hardware import sim_joint_specs
+    from bioscara.sim_server import SimServer
+
+    with SimServer(sim_joint_specs(load_config())) as server:
+        bus = open_bus(f"serial:{server.bridge_path}")
+        t0 = time.perf_counter()
+        for _ in range(transactions):
+            bus.transfer(0x11, bytes([P.PING]), 2)
+        seconds = time.perf_counter() - t0
+        bus.close()
+    return {"per_s": transactions / seconds, "us": seconds / transactions * 1e6}

@@ -46,6 +46,9 @@ def main() -> None:
     print(f"  wire: {c['bits']:.0f} bit times = {c['wire_us']:.0f} us at 400 kHz")
     print(f"  host CPU: {c['host_us']:.0f} us per cycle = {c['fraction']:.2f} x the wire time "
           f"(the simulator itself: {c['sim_us']:.0f} us, excluded)")
+    b = host.bridge_throughput()
+    print("HIL bridge framing over the simulator's pseudo-terminal (real time)")
+    print(f"  {b['per_s']:.0f} PING transactions/s ({b['us']:.0f} us each, serial round trip included)")
     print("communicator, 4 joints in position mode, simulated bus")
     for rate in (100.0, 250.0, 500.0):
         v = host.communicator_virtual(rate)
