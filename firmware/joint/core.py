@@ -68,6 +68,8 @@ class JointController(IrqPath, MainLoop, Handlers, Tasks, Supervisor):
             if reg is not None and reg.readable:
                 self._cache[addr] = bytearray(reg.rsize)
         self._cache[PING][0] = ACK
+        self._cache_values = [0, 0, 0, 0]  # what the float caches hold (HAL units)
+        self._f32_scratch = bytearray(4)
         struct.pack_into("<BBBBBI", self._cache[IDENTITY], 0, PROTOCOL_VERSION, FIRMWARE_VERSION[0],
                          FIRMWARE_VERSION[1], FIRMWARE_VERSION[2], cfg.joint_id, SPEC_HASH)
         # IRQ-side state: the reply the next read gets, the command queue, counters.

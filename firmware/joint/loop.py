@@ -79,14 +79,36 @@ class MainLoop:
         self._irq_on(state)
 
     def _refresh_caches(self):
+        """Pack the HAL's values into the reply caches, each only when it changed."""
         hal = self.hal
-        angle, rpm, driver, error = hal.angle_moved(), hal.encoder_rpm(), hal.driver_rpm(), hal.pid_error()
+        last = self._cache_values
         cache = self._cache
+        value = hal.angle_moved()
+        if value != last[0]:
+            last[0] = value
+            self._store_f32(cache[ANGLEMOVED], value, ANGLE_Q)
+        value = hal.encoder_rpm()
+        if value != last[1]:
+            last[1] = value
+            self._store_f32(cache[GETENCODERRPM], value, RPM_Q)
+        value = hal.driver_rpm()
+        if value != last[2]:
+            last[2] = value
+            self._store_f32(cache[GETDRIVERRPM], value, RPM_Q)
+        value = hal.pid_error()
+        if value != last[3]:
+            last[3] = value
+            self._store_f32(cache[GETPIDERROR], value, 0)
+
+    def _store_f32(self, dest, value, q):
+        """float32(value / 2**q) into a reply cache: packed aside, copied in one critical section."""
+        scratch = self._f32_scratch
+        pack_q(scratch, 0, value, q)
         state = self._irq_off()
-        pack_q(cache[ANGLEMOVED], 0, angle, ANGLE_Q)
-        pack_q(cache[GETENCODERRPM], 0, rpm, RPM_Q)
-        pack_q(cache[GETDRIVERRPM], 0, driver, RPM_Q)
-        pack_q(cache[GETPIDERROR], 0, error, 0)
+        dest[0] = scratch[0]
+        dest[1] = scratch[1]
+        dest[2] = scratch[2]
+        dest[3] = scratch[3]
         self._irq_on(state)
 
     def _apply_next(self):
