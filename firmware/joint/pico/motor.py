@@ -397,6 +397,10 @@ class PicoStepper(MotorHAL):
         """usteps (int)."""
         return self._error
 
+    def field_position(self):
+        """Usteps of pulses that reached the driver since construction, wrapping at 2**30."""
+        return self._steps.field
+
     def position_reached(self):
         return not self._stopping and self._ramp.position_reached() and self._steps.idle()
 

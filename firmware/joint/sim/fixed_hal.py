@@ -89,3 +89,6 @@ class FixedPointHAL(MotorHAL):
 
     def position_reached(self):
         return self.motor.position_reached()
+
+    def field_position(self):
+        return self.motor.field_position()
