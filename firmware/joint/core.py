@@ -73,8 +73,7 @@ class JointController(IrqPath, MainLoop, Handlers, Tasks, Supervisor):
         struct.pack_into("<BBBBBI", self._cache[IDENTITY], 0, PROTOCOL_VERSION, FIRMWARE_VERSION[0],
                          FIRMWARE_VERSION[1], FIRMWARE_VERSION[2], cfg.joint_id, SPEC_HASH)
         # IRQ-side state: the reply the next read gets, the command queue, counters.
-        self._reply_reg = BY_ADDR[PING]
-        self._reply_err = 0
+        self._init_irq_tables()
         self._queue = bytearray(QUEUE_SLOTS * SLOT)
         self._q_in = 0  # written by the IRQ path only
         self._q_out = 0  # written by the main loop only
