@@ -3,6 +3,10 @@ PYTHON ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
+# The emulated Pico (chip/): installed only where npm exists; its tests skip without it.
+NPM := $(shell command -v npm 2>/dev/null)
+CHIP_STAMP := chip/node_modules/.installed
+CHIP := $(if $(NPM),$(CHIP_STAMP))
 
 .PHONY: demo test bench clean
 
@@ -12,14 +16,18 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet -e '.[dev]'
 	touch $(STAMP)
 
+$(CHIP_STAMP): chip/package.json chip/package-lock.json
+	npm ci --prefix chip --no-audit --no-fund --loglevel=error
+	touch $(CHIP_STAMP)
+
 demo: $(STAMP)
 	$(BIN)/bioscara demo
 
-test: $(STAMP)
+test: $(STAMP) $(CHIP)
 	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/python -m pytest
 
 bench: $(STAMP)
 	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/python bench/run.py
 
 clean:
-	rm -rf $(VENV) build *.egg-info
+	rm -rf $(VENV) build *.egg-info chip/node_modules
