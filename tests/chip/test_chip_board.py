@@ -10,7 +10,7 @@ import serial
 
 from bioscara.mpboard import MpremoteBoard
 from chip import fsimage
-from chip.board import EmulatedPico
+from chip.board import BoardSpec, EmulatedPico
 from chip.testing import requires_chip
 
 pytestmark = requires_chip
@@ -67,3 +67,15 @@ def test_a_paused_board_steps_exactly_the_emulated_time_asked() -> None:
         assert pico.run_for(0.05) == 0.05
         assert pico.run_for(0.05) == 0.1
         assert pico.seconds() == 0.1
+
+
+def test_two_boards_in_one_process_each_have_their_own_pty(tmp_path: Path) -> None:
+    image = tmp_path / "fs.img"
+    image.write_bytes(fsimage.littlefs_image({"/name.txt": b"second"}))
+    with EmulatedPico(boards=[BoardSpec("first"), BoardSpec("second", fs_image=image)]) as pico:
+        assert pico.port("first") != pico.port("second")
+        read = "import os\nprint(open('name.txt').read() if 'name.txt' in os.listdir() else 'blank')"
+        assert pico.exec(read, "first").strip() == "blank"
+        assert pico.exec(read, "second").strip() == "second"
+        boards = pico.request("time")["boards"]
+        assert abs(boards["first"]["nanos"] - boards["second"]["nanos"]) <= pico.quantum_ns
