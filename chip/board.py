@@ -10,6 +10,7 @@ to the harness reports emulated time, pauses and steps the boards, and stops the
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import itertools
 import json
@@ -120,7 +121,7 @@ class EmulatedPico:
             raise ChipError(f"the emulated Pico did not start: {self.stderr_text() or 'no output'}") from None
         if ready.get("event") != "ready":
             self.close()
-            raise ChipError(f"the emulated Pico did not start: {ready}")
+            raise ChipError(f"the emulated Pico did not start: {self.stderr_text() or ready}")
         return self
 
     def close(self) -> None:
@@ -137,7 +138,7 @@ class EmulatedPico:
             thread.join(timeout=5)
         for link in self.links.values():
             for fd in (link.master, link.slave):
-                with _ignored_oserror():
+                with contextlib.suppress(OSError):
                     os.close(fd)
             link.sock.close()
         self.links.clear()
@@ -285,11 +286,3 @@ class EmulatedPico:
             del link.backlog[:written]
         if len(link.backlog) > PTY_BACKLOG:
             del link.backlog[:-PTY_BACKLOG]
-
-
-class _ignored_oserror:
-    def __enter__(self) -> None:
-        return None
-
-    def __exit__(self, kind: type[BaseException] | None, *rest: object) -> bool:
-        return kind is not None and issubclass(kind, OSError)
