@@ -102,7 +102,8 @@ async function main() {
     try {
       msg = JSON.parse(line);
       const [prefix, command] = String(msg.cmd).split('.', 2);
-      const handler = command ? controls.get(prefix)?.control.bind(null, command) : handlers[msg.cmd];
+      const plugin = command ? controls.get(prefix) : null;
+      const handler = plugin ? (m) => plugin.control(command, m) : handlers[msg.cmd];
       if (!handler) throw new Error(`unknown command ${msg.cmd}`);
       send({ id: msg.id, ok: true, ...(await handler(msg)) });
     } catch (error) {
