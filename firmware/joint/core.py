@@ -21,7 +21,8 @@ from .protocol import (
     ANGLEMOVED, BY_ADDR, CHECKORIENTATION, CLEARSTALL, DISABLECLOSEDLOOP, DISABLESTALLGUARD,
     ENABLECLOSEDLOOP, ENABLESTALLGUARD, FLAG_BUSY, FLAG_ERROR, FLAG_NOTENABLED, FLAG_NOTHOMED,
     FLAG_STALL, FLAGS_AT_BOOT, GETDRIVERRPM, GETENCODERRPM, GETPIDERROR, HOME, HOMEOFFSET, IDENTITY,
-    LASTERROR, MAX_FRAME, MOVEANGLE, MOVESTEPS, MOVETOANGLE, PING, PROTOCOL_VERSION, REJECT_BUSY,
+    LASTERROR, MAX_FRAME, MOVEANGLE, MOVESTEPS, MOVETOANGLE, PING, PROTOCOL, PROTOCOL_VERSION,
+    REJECT_BUSY,
     REJECT_DISABLED, REJECT_NONE, REJECT_QUEUE_FULL, REJECT_UNKNOWN_REGISTER, SETBRAKEMODE,
     SETCURRENT, SETHOLDCURRENT, SETMAXACCELERATION, SETMAXDECELERATION, SETMAXVELOCITY, SETRPM,
     SETUP, SPEC_HASH, STOP, ACK, reject_string,
@@ -138,7 +139,9 @@ class JointController:
             CLEARSTALL: self._clear_stall, SETBRAKEMODE: self._set_brake_mode,
             ENABLECLOSEDLOOP: self._enable_closed_loop, DISABLECLOSEDLOOP: self._disable_closed_loop,
             CHECKORIENTATION: self._check_orientation, HOME: self._home,
+            PROTOCOL: self._select_protocol,
         }
+        self.protocol_request = 0  # a PROTOCOL write (main loop); the protocol switch acts on it
         if self.disabled:
             for problem in cfg.errors:
                 log.error(problem)
@@ -438,6 +441,9 @@ class JointController:
 
     def _home(self, q, off):
         self._start_task("HOME", self._homing(q[off], q[off + 1], q[off + 2], q[off + 3]))
+
+    def _select_protocol(self, q, off):
+        self.protocol_request = q[off]
 
     # Blocking commands: generators yielding how many milliseconds to wait.
 
