@@ -92,6 +92,21 @@ def test_info_reports_identity_and_flags(capsys: pytest.CaptureFixture[str]) -> 
     assert code == 0 and info["joint_id"] == 4 and info["flags"] == "NOTHOMED|NOTENABLED" and info["position"] is None
 
 
+def test_scan_and_info_show_the_protocol_and_protocol_forces_one(capsys: pytest.CaptureFixture[str],
+                                                                 bus: SimBus) -> None:
+    code, out, _ = run(capsys, "scan", "--json", bus=bus)
+    assert code == 0 and all(d["protocols"] == "legacy+v2" for d in json.loads(out))
+    code, out, _ = run(capsys, "info", "j2", "--json", bus=bus)
+    info = json.loads(out)
+    assert code == 0 and info["protocol"] == "v2" and info["v2_link"]["bad_states"] == 0
+    assert bus.joint(0x12).protocol == 1, "info returns the joint to the legacy map when done"
+    code, out, _ = run(capsys, "info", "j2", "--json", "--protocol", "legacy", bus=bus)
+    assert code == 0 and json.loads(out)["protocol"] == "legacy" and "v2_link" not in json.loads(out)
+    with pytest.raises(SystemExit) as stop:
+        run(capsys, "info", "j2", "--protocol", "v3", bus=bus)
+    assert stop.value.code == 2 and "invalid choice: 'v3'" in capsys.readouterr().err
+
+
 def test_errors_are_one_line_and_non_zero(capsys: pytest.CaptureFixture[str], tmp_path) -> None:
     bad = tmp_path / "arm.toml"
     bad.write_text("[bus]\nattempts = 99\n")
