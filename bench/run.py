@@ -41,11 +41,17 @@ def main() -> None:
     print(f"  simulated joint turning at 60 rpm: {speed:.1f} virtual s per wall s")
 
     import host
-    c = host.control_cycle()
-    print("host, 4-joint control cycle (2 reads + 1 position write per joint) on the simulated bus")
-    print(f"  wire: {c['bits']:.0f} bit times = {c['wire_us']:.0f} us at 400 kHz")
-    print(f"  host CPU: {c['host_us']:.0f} us per cycle = {c['fraction']:.2f} x the wire time "
-          f"(the simulator itself: {c['sim_us']:.0f} us, excluded)")
+    cycles = {protocol: host.control_cycle(protocol=protocol) for protocol in ("legacy", "v2")}
+    for protocol, c in cycles.items():
+        what = "2 reads + 1 position write per joint" if protocol == "legacy" else "1 combined transaction per joint"
+        print(f"host, 4-joint control cycle over {protocol} ({what}) on the simulated bus")
+        print(f"  wire: {c['bits']:.0f} bit times = {c['wire_us']:.0f} us at 400 kHz")
+        print(f"  host CPU: {c['host_us']:.0f} us per cycle = {c['fraction']:.2f} x the wire time "
+              f"(the simulator itself: {c['sim_us']:.0f} us, excluded)")
+    for protocol, c in cycles.items():
+        print(f"{protocol}.cycle_bits.4joints {c['bits']:.0f}")
+        for khz in (400, 1000):
+            print(f"{protocol}.cycle_rate_hz.4joints.{khz}khz {khz * 1000 / c['bits']:.0f}")
     b = host.bridge_throughput()
     print("HIL bridge framing over the simulator's pseudo-terminal (real time)")
     print(f"  {b['per_s']:.0f} PING transactions/s ({b['us']:.0f} us each, serial round trip included)")

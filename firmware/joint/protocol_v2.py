@@ -20,15 +20,19 @@ State (offset 7, written by the joint):
     7  status   bit 7 always 1; bits 4-6 the verdict of the latest frame (REASON_*); bits 0-3 the
                 legacy flags STALL, BUSY, NOTHOMED, NOTENABLED
     8  position int24, motor angle since home in 1/64 deg (legacy ANGLEMOVED), saturated
-    11 velocity int16, encoder speed in 1/8 rpm (legacy GETENCODERRPM), saturated
+    11 velocity int15 + bit 15 always 1: encoder speed in 1/8 rpm (legacy GETENCODERRPM),
+                saturated at +/-2048 rpm
     13 ack      seq of the latest frame that passed the link checks; bit 7 always 0
     14 crc      CRC-8/SMBUS over (address << 1 | R), bytes 7..13
 
-The marker bits make the cheap corruptions deterministic: a write one byte too long puts the
-mailbox's last byte (bit 7 clear) over the status byte (bit 7 set); a read that ends early reads
-0xFF (released SDA) where ack must have bit 7 clear. The address in both CRCs rejects a frame that
-reached the wrong joint through a flipped address bit. The joint applies a frame only if it is
-new: 1..63 ahead of `ack` (7-bit arithmetic). The same frame again (a retry) is ignored without
+The marker bits make the cheap corruptions deterministic, not merely unlikely: a write one byte
+too long puts the mailbox's last byte (bit 7 clear) over the status byte (bit 7 set); a read that
+ends early reads 0xFF (released SDA) where ack must have bit 7 clear; a byte slipped into a read
+before the ack pushes the velocity's high byte (bit 7 set) into the ack. The host takes a state
+only if its ack is exactly the frame it sent before (so a replayed block never gets in). The
+address in both CRCs rejects a frame that reached the wrong joint through a flipped address bit.
+CRC-8/SMBUS catches every error of up to 3 bits in these frames. The joint applies a frame only
+if it is new: 1..63 ahead of `ack` (7-bit arithmetic). The same frame again (a retry) is ignored without
 changing the verdict; anything else behind or equal is a sequence error.
 """
 
@@ -71,7 +75,8 @@ REASON_MASK = const(0x70)
 POSITION_Q = const(6)  # 1/64 deg
 VELOCITY_Q = const(3)  # 1/8 rpm
 POSITION_MAX = const(0x7FFFFF)
-VELOCITY_MAX = const(0x7FFF)
+VELOCITY_MAX = const(0x3FFF)
+VELOCITY_MARKER = const(0x80)  # in the velocity's high byte
 
 # How long a v2 joint waits for its host before it serves the legacy map again (ms).
 SILENCE_MS = const(500)
@@ -105,7 +110,7 @@ FROM_LEGACY = bytes((REASON_OK, REASON_COMMAND, REASON_COMMAND, REASON_COMMAND, 
 STATE_FIELDS = (
     ("status", "u8", "bit 7 marker, bits 4-6 verdict, bits 0-3 flags", 1),
     ("position", "i24", "deg (motor), since home", 1 << POSITION_Q),
-    ("velocity", "i16", "rpm (motor), encoder", 1 << VELOCITY_Q),
+    ("velocity", "i15+marker", "rpm (motor), encoder", 1 << VELOCITY_Q),
     ("ack", "u8", "sequence number of the latest frame that passed the link checks", 1),
     ("crc", "u8", "CRC-8/SMBUS", 1),
 )
@@ -170,7 +175,7 @@ def spec_bytes():
     """A canonical encoding of this layout, covered by the spec hash (protocol.spec_hash)."""
     out = bytearray((PROTOCOL_V2, MAILBOX, MAILBOX_SIZE, STATE, STATE_SIZE, MEM_ADDRSIZE,
                      M_CMD, M_PAYLOAD, M_CRC, M_SEQ, S_STATUS, S_POSITION, S_VELOCITY, S_ACK,
-                     S_CRC, POSITION_Q, VELOCITY_Q, SEQ_WINDOW, STATUS_MARKER))
+                     S_CRC, POSITION_Q, VELOCITY_Q, SEQ_WINDOW, STATUS_MARKER, VELOCITY_MARKER))
     for group in (STATE_FIELDS, MAILBOX_FIELDS):
         for name, kind, unit, scale in group:
             out.extend(name.encode())
@@ -204,13 +209,14 @@ def encode_frame(address, cmd, payload, seq):
 def decode_state(address, data):
     """(flags, verdict, position, velocity, ack) of a state block read from the joint at
     `address`, position in 1/64 deg and velocity in 1/8 rpm; None if the block is corrupt."""
-    if len(data) != STATE_SIZE or not data[0] & STATUS_MARKER or data[S_ACK - STATE] & 0x80:
+    v = S_VELOCITY - STATE
+    if (len(data) != STATE_SIZE or not data[0] & STATUS_MARKER or data[S_ACK - STATE] & 0x80
+            or not data[v + 1] & VELOCITY_MARKER):
         return None
     if state_crc(data, 0, address) != data[STATE_SIZE - 1]:
         return None
     p = S_POSITION - STATE
-    v = S_VELOCITY - STATE
     position = sign_extend(data[p] | (data[p + 1] << 8) | (data[p + 2] << 16), 24)
-    velocity = sign_extend(data[v] | (data[v + 1] << 8), 16)
+    velocity = sign_extend(data[v] | ((data[v + 1] & 0x7F) << 8), 15)
     return (data[0] & STATUS_FLAGS, (data[0] & REASON_MASK) >> REASON_SHIFT, position, velocity,
             data[S_ACK - STATE])

@@ -219,7 +219,7 @@ class MemLink:
         out[p + 2] = (pos >> 16) & 0xFF
         v = V.S_VELOCITY - V.STATE
         out[v] = vel & 0xFF
-        out[v + 1] = (vel >> 8) & 0xFF
+        out[v + 1] = V.VELOCITY_MARKER | ((vel >> 8) & 0x7F)
         out[V.S_ACK - V.STATE] = self.ack
         out[V.S_CRC - V.STATE] = V.state_crc(out, 0, self._address)
 

@@ -3,8 +3,8 @@ exchange, writing a mailbox frame and reading the state block, with the checks t
 or replayed data out.
 
 A state block is taken only if its CRC (which covers the joint's address) matches, its marker bits
-are right, and its `ack` is newer than the last state taken and no newer than the last frame sent:
-a replayed or stale block never gets in. Every frame gets the next sequence number, except a
+are right, and its `ack` is exactly the frame sent in the transaction before (the one the joint
+judged in between) and differs from the last state taken: a replayed or stale block never gets in. Every frame gets the next sequence number, except a
 command's retransmissions while the host waits for its verdict, which repeat it byte for byte (the
 joint applies it once). Everything that went wrong is counted in `V2LinkStats`.
 """
@@ -40,9 +40,9 @@ class V2LinkStats:
 
     exchanges: int = 0
     bad_states: int = 0  # CRC or marker mismatch: a corrupted state block, discarded
-    stale_states: int = 0  # ack not newer than the last state taken (replayed or not yet updated)
-    unacknowledged: int = 0  # frames the joint did not accept (corrupted, lost, stale)
-    link_rejects: int = 0  # verdicts CRC / SEQUENCE / FRAME reported by the joint
+    stale_states: int = 0  # ack not the frame sent before (replayed, or that frame not yet judged)
+    unacknowledged: int = 0  # commands whose verdict never came
+    link_rejects: int = 0  # stale states whose verdict is CRC / SEQUENCE / FRAME: a frame was damaged
     rejected: int = 0  # commands refused by the joint's checks (value, busy, ...)
     retransmissions: int = 0
 
@@ -63,19 +63,23 @@ class V2Link:
         self.stats = V2LinkStats()
         self.seq = 0
         self.last: V2State | None = None
-        self._acked = 0  # ack of the last state taken
+        self._acked = -1  # ack of the last state taken
+        self._sent = -1  # seq of the frame sent in the latest transaction
         self._pending: tuple[int, bytes] | None = None  # (seq, frame) of a command awaiting its verdict
         self.bad_in_a_row = 0  # corrupted state blocks since the last intact one
 
     # ---- frames and states ----
 
     def _transfer(self, frame: bytes) -> V2State | None:
+        expected = self._sent
         reply = self.bus.transfer(self.address, frame, V.STATE_SIZE)
+        self._sent = frame[V.M_SEQ]
         self.stats.exchanges += 1
-        return self.take(reply)
+        return self.take(reply, expected)
 
-    def take(self, reply: bytes) -> V2State | None:
-        """The state in `reply` if it is intact and fresh; None (counted) otherwise."""
+    def take(self, reply: bytes, expected: int) -> V2State | None:
+        """The state in `reply` if it is intact and acknowledges frame `expected` (not yet seen
+        acknowledged); None (counted) otherwise."""
         decoded = V.decode_state(self.address, reply)
         if decoded is None:
             self.stats.bad_states += 1
@@ -83,9 +87,10 @@ class V2Link:
             return None
         self.bad_in_a_row = 0
         flags, verdict, position, velocity, ack = decoded
-        ahead = (ack - self._acked) & V.SEQ_MASK
-        if ahead == 0 or ahead > ((self.seq - self._acked) & V.SEQ_MASK):
-            self.stats.stale_states += 1
+        if ack != expected or ack == self._acked:
+            self.stats.stale_states += 1  # replayed, or the joint has not judged that frame yet
+            if verdict in V.LINK_REASONS:
+                self.stats.link_rejects += 1  # ... because it failed the joint's link checks
             return None
         self._acked = ack
         self.last = V2State(flags, verdict, position / (1 << V.POSITION_Q),
@@ -109,6 +114,7 @@ class V2Link:
                 reply = self.bus.transfer(self.address, frame, V.STATE_SIZE)
             except CommError:
                 reply = b""
+            self._sent = frame[V.M_SEQ]
             decoded = V.decode_state(self.address, reply) if reply else None
             if decoded is None:
                 previous = None
@@ -139,11 +145,6 @@ class V2Link:
         return state
 
     def _check_previous(self, state: V2State, previous: int) -> None:
-        if state.ack != previous:
-            self.stats.unacknowledged += 1
-            if state.verdict in V.LINK_REASONS:
-                self.stats.link_rejects += 1
-            return
         pending = self._pending
         self._pending = None
         if state.verdict != V.REASON_OK and pending is not None and pending[0] == previous:
