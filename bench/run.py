@@ -15,7 +15,8 @@ import sys
 import time
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
-sys.path[:0] = [str(ROOT / "firmware"), str(ROOT / "firmware" / "tests"), str(ROOT / "bench")]
+sys.path[:0] = [str(ROOT / "firmware"), str(ROOT / "firmware" / "tests"), str(ROOT / "bench"),
+                str(ROOT / "tests")]
 
 
 def micropython_figures() -> dict[str, float]:
@@ -52,6 +53,17 @@ def main() -> None:
         print(f"{protocol}.cycle_bits.4joints {c['bits']:.0f}")
         for khz in (400, 1000):
             print(f"{protocol}.cycle_rate_hz.4joints.{khz}khz {khz * 1000 / c['bits']:.0f}")
+    import v2_attack
+    attacks = (("joint", v2_attack.attack_joint(100_000, seed=1), "applied"),
+               ("host", v2_attack.attack_host(100_000, seed=2), "accepted_wrong"))
+    print("protocol v2 under attack: 100,000 corrupted frames each way (seeded; tests/v2_attack.py)")
+    for side, r, bad in attacks:
+        kinds = ", ".join(f"{k} {n}" for k, n in r.by_kind.items())
+        print(f"  to the {side}: {kinds}; unchanged by the corruption {r.identical}")
+        print(f"v2.attack.{side}.frames {r.frames}")
+        print(f"v2.attack.{side}.{bad} {getattr(r, bad)}")
+        print(f"v2.attack.{side}.uncounted {r.uncounted}")
+        print(f"v2.attack.{side}.intact_lost {r.intact_lost}")
     b = host.bridge_throughput()
     print("HIL bridge framing over the simulator's pseudo-terminal (real time)")
     print(f"  {b['per_s']:.0f} PING transactions/s ({b['us']:.0f} us each, serial round trip included)")

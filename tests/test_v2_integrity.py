@@ -19,3 +19,15 @@ def test_corrupted_states_are_never_taken_and_always_counted() -> None:
 
 def test_crc8_catches_every_error_of_up_to_three_bits_in_both_blocks() -> None:
     assert v2_attack.check_crc_catches_every_error_of_up_to_3_bits() > 50_000
+
+
+def test_the_chip_comparison_vectors_are_deterministic_and_cover_each_verdict() -> None:
+    import v2_vectors
+    from bioscara.firmware import protocol_v2 as V
+    vectors = v2_vectors.sim_vectors()
+    again = v2_vectors.sim_vectors()
+    assert v2_vectors.compare(vectors, [v.reply for v in again]) == []
+    states = [V.decode_state(0x11, v.reply) for v in vectors if v.read_len == V.STATE_SIZE]
+    verdicts = {s[1] for s in states[1:] if s is not None}
+    assert {V.REASON_OK, V.REASON_CRC, V.REASON_SEQUENCE, V.REASON_FRAME} <= verdicts, verdicts
+    assert vectors[-1].reply == b"O" + bytes([vectors[-1].reply[1]]), "legacy again at the end"

@@ -2,8 +2,8 @@
 (MemLink and the joint core on the fake mem-mode target) and the host's V2Link.
 
 Corruptions, one per frame, chosen at random (seeded): 1-3 flipped bits, truncation (the write
-stops early; a read ends early and the host reads 0xFF from the released bus), an inserted byte,
-and a replay of an earlier frame. Every corrupted frame is followed by the intact one, which must
+stops early; a read ends early and the host reads 0xFF from the released bus), a byte inserted
+before one of the frame's bytes, and a replay of one of the 63 frames before. Every corrupted frame is followed by the intact one, which must
 get through (the link is not wedged by the attack). `make test` runs a few thousand of each,
 `make bench` 100,000 of each.
 """
@@ -33,6 +33,11 @@ class Result:
     uncounted: int = 0  # corruptions no link statistic counted (must be 0)
     intact_lost: int = 0  # intact frames after a corrupted one that did not get through (must be 0)
     counters: dict[str, int] = field(default_factory=dict)
+    examples: list[str] = field(default_factory=list)  # the first few failures, for diagnosis
+
+    def fail(self, what: str, kind: str, bad: bytes, intact: bytes) -> None:
+        if len(self.examples) < 10:
+            self.examples.append(f"{what} {kind}: {bad.hex()} (intact {intact.hex()})")
 
 
 def corrupt(rng: random.Random, data: bytes, kind: str, history: list[bytes], pad: int) -> bytes:
@@ -45,7 +50,9 @@ def corrupt(rng: random.Random, data: bytes, kind: str, history: list[bytes], pa
         keep = rng.randrange(1 if pad < 0 else 0, len(data))  # a write of 0 bytes has no frame
         return data[:keep] + (bytes([pad]) * (len(data) - keep) if pad >= 0 else b"")
     if kind == "insert":
-        at = rng.randrange(len(data) + 1)
+        # Inside the frame: a byte appended after an intact mailbox leaves the intact command
+        # (rightly applied; the state read that follows is misaligned and the host drops it).
+        at = rng.randrange(len(data))
         out = data[:at] + bytes([rng.randrange(256)]) + data[at:]
         return out if pad < 0 else out[:len(data)]  # a read still clocks len(data) bytes
     return history[-rng.randint(1, min(len(history), V.SEQ_WINDOW - 1))]
@@ -92,14 +99,17 @@ def attack_joint(frames: int, seed: int = 1) -> Result:
         rig.tick()  # ... and the queue applied to the motor
         if len(motor.calls) != calls:
             result.applied += 1
+            result.fail("applied", kind, bad, intact)
         if _counted(rig.link) != counted + 1:
             result.uncounted += 1
+            result.fail("uncounted", kind, bad, intact)
         calls = len(motor.calls)
         rig.xfer(intact, V.STATE_SIZE)
         rig.tick()
         rig.tick()
         if motor.calls[calls:] != ([call] if call else []):
             result.intact_lost += 1
+            result.fail("intact lost", kind, bad, intact)
         history.append(intact)
     link = rig.link
     result.counters = {name: getattr(link, name) for name in
@@ -166,16 +176,19 @@ def attack_host(frames: int, seed: int = 2) -> Result:
             result.identical += 1
         elif link.stats.bad_states + link.stats.stale_states != before + 1:
             result.uncounted += 1
+            result.fail("uncounted", kind, bad, true)
         if state is not None and bad != true:
             truth = V.decode_state(rig.address, true)
             got = (state.flags, state.verdict, round(state.position_deg * 64), round(state.velocity_rpm * 8),
                    state.ack)
             if truth is None or got != truth:
                 result.accepted_wrong += 1
+                result.fail("accepted", kind, bad, true)
         history.append(true)
         bus.tamper = lambda reply: reply
         if link.exchange() is None:
             result.intact_lost += 1
+            result.fail("intact lost", kind, bad, true)
     result.counters = {"exchanges": link.stats.exchanges, "bad_states": link.stats.bad_states,
                        "stale_states": link.stats.stale_states}
     return result
