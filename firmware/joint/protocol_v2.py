@@ -79,7 +79,7 @@ VELOCITY_MAX = const(0x3FFF)
 VELOCITY_MARKER = const(0x80)  # in the velocity's high byte
 
 # How long a v2 joint waits for its host before it serves the legacy map again (ms).
-SILENCE_MS = const(500)
+SILENCE_MS = const(2000)
 
 # The verdict of the latest frame, in the status byte.
 REASON_OK = const(0)
