@@ -68,11 +68,12 @@ class JointController(IrqPath, MainLoop, Handlers, Tasks, Supervisor):
             if reg is not None and reg.readable:
                 self._cache[addr] = bytearray(reg.rsize)
         self._cache[PING][0] = ACK
+        self._cache_values = [0, 0, 0, 0]  # what the float caches hold (HAL units)
+        self._f32_scratch = bytearray(4)
         struct.pack_into("<BBBBBI", self._cache[IDENTITY], 0, PROTOCOL_VERSION, FIRMWARE_VERSION[0],
                          FIRMWARE_VERSION[1], FIRMWARE_VERSION[2], cfg.joint_id, SPEC_HASH)
         # IRQ-side state: the reply the next read gets, the command queue, counters.
-        self._reply_reg = BY_ADDR[PING]
-        self._reply_err = 0
+        self._init_irq_tables()
         self._queue = bytearray(QUEUE_SLOTS * SLOT)
         self._q_in = 0  # written by the IRQ path only
         self._q_out = 0  # written by the main loop only

@@ -7,6 +7,7 @@ from ..core import JointController
 from ..i2c_target import I2CTargetAdapter
 from ..log import INFO, Logger
 from ..v2 import ProtocolSwitch
+from .fixed_hal import FixedPointHAL
 from .i2c_target import FakeI2CTarget
 
 
@@ -45,7 +46,7 @@ class SimJoint:
         if self.switch is not None:
             self.switch.deinit()
         self.switch = None
-        self.core = JointController(self.stepper, self.clock, self.cfg, self.log)
+        self.core = JointController(FixedPointHAL(self.stepper), self.clock, self.cfg, self.log)
         self.boots += 1
 
     @property
