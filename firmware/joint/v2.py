@@ -19,6 +19,7 @@ Allocation-free once constructed (tests run it with the heap locked under MicroP
 
 from . import protocol as P
 from . import protocol_v2 as V
+from .fixed import f32_to_q
 from .i2c_target import IRQ_END_WRITE
 
 try:
@@ -29,34 +30,16 @@ except ImportError:
 
 _EMPTY_CMD = const(0xFF)  # no register 0xFF: a mailbox the host has not written since the swap
 _EMPTY_SEQ = const(0x80)  # bit 7 set: never a sequence number the host sends
-_F32_BIAS = const(150)  # float32 exponent bias 127 + 23 mantissa bits
 
 
 def f32_to_fixed(buf, off, q, limit):
-    """round(float32 at buf[off:] x 2**q), saturated to +/-limit (limit < 2**24); NaN is 0.
-    Integer arithmetic only: no float object is created."""
-    b3 = buf[off + 3]
-    b2 = buf[off + 2]
-    exp = ((b3 & 0x7F) << 1) | (b2 >> 7)
-    if exp == 0:
-        return 0
-    mant = ((b2 & 0x7F) << 16) | (buf[off + 1] << 8) | buf[off]
-    if exp == 0xFF:
-        if mant:
-            return 0
-        value = limit
-    else:
-        mant |= 0x800000
-        shift = _F32_BIAS - q - exp
-        if shift <= 0:
-            value = limit
-        elif shift > 25:
-            value = 0
-        else:
-            value = (mant + (1 << (shift - 1))) >> shift
-            if value > limit:
-                value = limit
-    return -value if b3 & 0x80 else value
+    """round(float32 at buf[off:] x 2**q), saturated to +/-limit. Integer arithmetic only."""
+    value = f32_to_q(buf, off, q)
+    if value > limit:
+        return limit
+    if value < -limit:
+        return -limit
+    return value
 
 
 class MemLink:
