@@ -35,6 +35,10 @@ def main() -> None:
         print(f"  IRQ path, {frame}: {mp['irq_us_' + label]:.1f} us per transaction = "
               f"{mp['irq_fraction_of_wire_' + label] * 100:.1f} % of its 187.5 us wire time at 400 kHz")
     print(f"  main-loop iteration (recording motor, no physics): {mp['main_loop_us']:.1f} us")
+    print(f"  protocol v2 pass (swap, judge, pack): {mp['v2_poll_us_frame']:.1f} us with a frame, "
+          f"{mp['v2_poll_us_idle']:.1f} us without")
+    print(f"firmware.v2_poll_us.frame {mp['v2_poll_us_frame']:.1f}")
+    print(f"firmware.v2_poll_us.idle {mp['v2_poll_us_idle']:.1f}")
     print(f"  simulated joint turning at 60 rpm: {mp['sim_virtual_s_per_wall_s']:.1f} virtual s per wall s")
     print("host simulator, CPython")
     import simspeed

@@ -122,22 +122,31 @@ MAILBOX_FIELDS = (
 )
 
 
+def _crc_table():
+    table = bytearray(256)
+    for value in range(256):
+        crc = value
+        for _ in range(8):
+            crc = ((crc << 1) ^ 0x07) & 0xFF if crc & 0x80 else (crc << 1) & 0xFF
+        table[value] = crc
+    return bytes(table)
+
+
+_CRC_TABLE = _crc_table()
+
+
 def crc8(buf, start, end, crc=0):
     """CRC-8/SMBUS (poly 0x07, init 0, no reflection) of buf[start:end], continuing `crc`.
 
-    Allocation-free: the firmware runs it in its main loop."""
+    Allocation-free, one table lookup per byte: the firmware runs it in its main loop."""
+    table = _CRC_TABLE
     for i in range(start, end):
-        crc ^= buf[i]
-        for _ in range(8):
-            crc = ((crc << 1) ^ 0x07) & 0xFF if crc & 0x80 else (crc << 1) & 0xFF
+        crc = table[crc ^ buf[i]]
     return crc
 
 
 def crc8_byte(value, crc=0):
-    crc ^= value
-    for _ in range(8):
-        crc = ((crc << 1) ^ 0x07) & 0xFF if crc & 0x80 else (crc << 1) & 0xFF
-    return crc
+    return _CRC_TABLE[crc ^ value]
 
 
 def mailbox_crc(buf, off, address):
