@@ -123,3 +123,20 @@ def test_v2_through_the_hil_bridge_on_the_simulators_pty() -> None:
             assert bus.link.crc_errors == 0 and bus.link.timeouts == 0
         finally:
             bus.close()
+
+
+def test_auto_keeps_a_joint_that_cannot_switch_on_legacy_and_the_arm_cycles_both(config, bus) -> None:
+    from bioscara.arm import Arm
+    from bioscara.communicator import Communicator
+    from bioscara.errors import CommError
+    from bioscara.firmware import protocol as P
+    bus.joint(0x11).core._handlers[P.PROTOCOL] = lambda q, off: None  # as on CircuitPython: no mem mode
+    arm = Arm(config, bus, "auto")
+    arm.configure()
+    assert [aj.joint.protocol for aj in arm.joints.values()] == ["legacy", "v2", "v2", "v2"]
+    Communicator(arm, 100.0, realtime_priority=None).run_for(0.2)
+    assert all(aj.state.home == 0.0 and aj.joint.flags == P.FLAGS_AT_BOOT for aj in arm.joints.values())
+    arm.cleanup()
+    strict = Arm(config, bus, "v2")
+    with pytest.raises(CommError, match="does not answer in protocol v2"):
+        strict.configure()

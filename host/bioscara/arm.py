@@ -25,7 +25,7 @@ from enum import Enum
 
 from .bus.base import Bus
 from .config import ArmConfig, JointConfig
-from .errors import BioscaraError, IncorrectStateError, InvalidArgumentError, NotHomedError
+from .errors import BioscaraError, CommError, IncorrectStateError, InvalidArgumentError, NotHomedError
 from .firmware import protocol as P
 from .joint import BlockingCommand, Joint
 
@@ -139,7 +139,14 @@ class Arm:
             return
         supported = joint.identity().protocol >= P.PROTOCOL_VERSION
         if supported:
-            joint.use_v2()
+            try:
+                joint.use_v2()
+            except CommError as exc:
+                if self.protocol == "v2":
+                    raise
+                # A port without a memory-mode target (CircuitPython) keeps serving legacy.
+                log.warning("joint %s stays on the legacy map: %s", joint.name, exc.detail)
+                joint.check_com()
         elif self.protocol == "v2":
             raise IncorrectStateError("the joint's firmware does not serve protocol v2", joint=joint.name)
 
