@@ -21,6 +21,7 @@ from . import protocol as P
 from . import protocol_v2 as V
 from .fixed import f32_to_q
 from .i2c_target import IRQ_END_WRITE
+from .irq import COUNTER_MASK  # counters wrap before they would become long ints
 
 try:
     from micropython import const
@@ -98,7 +99,7 @@ class MemLink:
             self.target = None
 
     def _count_write(self, target):
-        self.writes += 1
+        self.writes = (self.writes + 1) & COUNTER_MASK
 
     # ---- main loop ----
 
@@ -113,7 +114,7 @@ class MemLink:
             self._pack()
             took = self._swap()
             if took < 0:
-                self.deferred += 1
+                self.deferred = (self.deferred + 1) & COUNTER_MASK
                 return False
             if not took:
                 return True
@@ -139,21 +140,21 @@ class MemLink:
 
     def _judge(self, overflow):
         rx = self._rx
-        self.frames += 1
+        self.frames = (self.frames + 1) & COUNTER_MASK
         if overflow or rx[V.M_SEQ] & _EMPTY_SEQ:
-            self.frame_errors += 1
+            self.frame_errors = (self.frame_errors + 1) & COUNTER_MASK
             self.verdict = V.REASON_FRAME
             return
         if V.mailbox_crc(rx, 0, self._address) != rx[V.M_CRC]:
-            self.crc_errors += 1
+            self.crc_errors = (self.crc_errors + 1) & COUNTER_MASK
             self.verdict = V.REASON_CRC
             return
         ahead = (rx[V.M_SEQ] - self.ack) & V.SEQ_MASK
         if ahead == 0 and rx == self._last:
-            self.retries += 1  # the host retried a transfer: applied once, verdict unchanged
+            self.retries = (self.retries + 1) & COUNTER_MASK  # the host retried a transfer: applied once, verdict unchanged
             return
         if ahead == 0 or ahead >= V.SEQ_WINDOW:
-            self.sequence_errors += 1
+            self.sequence_errors = (self.sequence_errors + 1) & COUNTER_MASK
             self.verdict = V.REASON_SEQUENCE
             return
         self.ack = rx[V.M_SEQ]
@@ -161,11 +162,11 @@ class MemLink:
         self.verdict = self._apply(rx)
         if self.verdict == V.REASON_OK:
             if rx[V.M_CMD] == V.CMD_NONE:
-                self.polls += 1
+                self.polls = (self.polls + 1) & COUNTER_MASK
             else:
-                self.applied += 1
+                self.applied = (self.applied + 1) & COUNTER_MASK
         else:
-            self.rejected += 1
+            self.rejected = (self.rejected + 1) & COUNTER_MASK
 
     def _apply(self, rx):
         cmd = rx[V.M_CMD]
