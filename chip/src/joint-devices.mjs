@@ -68,3 +68,11 @@ export class JointDevices {
     }
   }
 }
+
+/** Harness plugin (chip/src/harness.mjs): options { board, node, offsetCounts, encoderSign, seed }. */
+export function attach(world, boards, options = {}) {
+  const board = options.board ? boards.get(options.board) : boards.values().next().value;
+  if (!board) throw new Error(`joint devices: no board ${options.board}`);
+  const devices = new JointDevices(board, options);
+  return { name: options.name ?? 'joint', control: (command, msg) => devices.control(command, msg) };
+}
