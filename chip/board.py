@@ -203,6 +203,12 @@ class EmulatedPico:
             transport.close()
         return out.decode(errors="replace")
 
+    def fs_image(self, name: str | None = None) -> bytes:
+        """The board's littlefs region of flash as it is now (read it with chip.fsimage.read_image)."""
+        import base64
+
+        return base64.b64decode(self.request("fs", board=name)["image"])
+
     def stderr_text(self) -> str:
         return "\n".join(self.stderr_lines[-20:])
 
@@ -248,7 +254,10 @@ class EmulatedPico:
                         if data:
                             link.sock.sendall(data)
                     else:
-                        data = link.sock.recv(65536)
+                        try:
+                            data = link.sock.recv(65536)
+                        except ConnectionResetError:  # the harness has gone
+                            data = b""
                         if not data:
                             selector.unregister(link.sock)
                             continue
