@@ -8,7 +8,7 @@ NPM := $(shell command -v npm 2>/dev/null)
 CHIP_STAMP := chip/node_modules/.installed
 CHIP := $(if $(NPM),$(CHIP_STAMP))
 
-.PHONY: demo test bench clean
+.PHONY: demo test bench bench-chip clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -28,6 +28,10 @@ test: $(STAMP) $(CHIP)
 
 bench: $(STAMP)
 	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/python bench/run.py
+
+# Figures measured on the emulated Pico (needs node and ../shared/rp2040; says what is missing).
+bench-chip: $(STAMP) $(CHIP)
+	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/python bench/chip_bench.py
 
 clean:
 	rm -rf $(VENV) build *.egg-info chip/node_modules

@@ -188,13 +188,14 @@ class EmulatedPico:
     def resume(self) -> float:
         return float(self.request("resume")["seconds"])
 
-    def exec(self, code: str, name: str | None = None, timeout: float = 60.0) -> str:
-        """Runs `code` in the board's raw REPL (mpremote's transport); returns its output."""
+    def exec(self, code: str, name: str | None = None, timeout: float = 60.0, soft_reset: bool = False) -> str:
+        """Runs `code` in the board's raw REPL (mpremote's transport); returns its output.
+        `soft_reset`: interrupt main.py and start from a fresh heap first, as mpremote does."""
         from mpremote.transport_serial import SerialTransport
 
         transport = SerialTransport(self.port(name), baudrate=115200)
         try:
-            transport.enter_raw_repl(soft_reset=False)
+            transport.enter_raw_repl(soft_reset=soft_reset)
             out, error = transport.exec_raw(code, timeout=timeout)
             if error:
                 raise ChipError(f"the board raised: {error.decode(errors='replace').strip()}")
