@@ -11,6 +11,9 @@ import serial
 from bioscara.mpboard import MpremoteBoard
 from chip import fsimage
 from chip.board import EmulatedPico
+from chip_fixtures import requires_chip
+
+pytestmark = requires_chip
 
 
 def test_mpremote_runs_code_on_the_board_through_its_pty() -> None:

@@ -1,4 +1,8 @@
-"""Fixtures for the chip tests: skip when the emulated Pico cannot run; the deployed joint image."""
+"""Shared by the chip tests: the skip mark naming what is missing, and the deployed joint image.
+
+Not a conftest.py: a second top-level `conftest` module would shadow tests/conftest.py, which
+other tests import (`from conftest import Recorder`). Test modules import what they use from here.
+"""
 
 from __future__ import annotations
 
@@ -8,15 +12,7 @@ import pytest
 
 from chip.paths import missing
 
-
-def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    problem = missing()
-    if problem is None:
-        return
-    here = Path(__file__).parent
-    for item in items:
-        if here in Path(item.fspath).parents:
-            item.add_marker(pytest.mark.skip(reason=f"emulated Pico: {problem}"))
+requires_chip = pytest.mark.skipif(missing() is not None, reason=f"emulated Pico: {missing()}")
 
 
 @pytest.fixture(scope="session")
