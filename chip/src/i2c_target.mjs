@@ -347,11 +347,12 @@ export class RP2040I2C extends RPI2C {
   }
 }
 
-/** Replace rp2040js's two I2C blocks with RP2040I2C; returns them. */
+/** Replace rp2040js's two I2C blocks with RP2040I2C (once, before the CPU runs); returns them. */
 export function installI2C(mcu) {
   const bases = [0x40044, 0x40048];
   for (let index = 0; index < 2; index++) {
     const old = mcu.i2c[index];
+    if (old instanceof RP2040I2C) continue;
     const block = new RP2040I2C(mcu, old.name, old.irq);
     mcu.i2c[index] = block;
     mcu.peripherals[bases[index]] = block;
