@@ -1,10 +1,11 @@
 // An emulated Raspberry Pi Pico: rp2040js's RP2040 with the RP2040 bootrom, a UF2 in flash, an
 // optional littlefs image, and our datasheet fixes (PL011 transmit FIFO and interrupt; a USB host
-// that NAKs OUT transfers until it has data). It runs only when stepped, in emulated time, so a run
+// that NAKs OUT transfers until it has data; a flash chip the bootrom can erase and program). It runs only when stepped, in emulated time, so a run
 // is deterministic for a given sequence of inputs; several boards step together in a `World`.
 import { readFileSync } from 'node:fs';
 import { resolve } from 'node:path';
 import { ConsoleLogger, LogLevel, RP2040, USBCDC } from 'rp2040js';
+import { installFlash } from './flash.mjs';
 import { BOOTROM_NAME, rp2040Dir, UF2_NAME } from './paths.mjs';
 import { uf2Blocks } from './uf2.mjs';
 import { installPL011 } from './uart.mjs';
@@ -36,6 +37,7 @@ export class Board {
     if (!stockUart) installPL011(mcu);
     const rom = bytesOf(bootrom);
     mcu.loadBootrom(new Uint32Array(rom.buffer, rom.byteOffset, rom.byteLength >> 2)); // also erases flash
+    installFlash(this);
     if (uf2) {
       for (const { address, payload } of uf2Blocks(bytesOf(uf2))) {
         mcu.flash.set(payload, address - FLASH_BASE);
@@ -56,6 +58,11 @@ export class Board {
   writeFlash(offset, bytes, limit = bytes.length) {
     if (bytes.length > limit) throw new Error(`${bytes.length} bytes do not fit in ${limit}`);
     this.rp2040.flash.set(bytes, offset);
+  }
+
+  /** The filesystem region of flash (littlefs), as MicroPython has left it. */
+  fsImage() {
+    return this.rp2040.flash.slice(FS_OFFSET, FS_OFFSET + FS_SIZE);
   }
 
   /** Emulated time in nanoseconds since power-on. */
