@@ -248,7 +248,10 @@ class EmulatedPico:
                         if data:
                             link.sock.sendall(data)
                     else:
-                        data = link.sock.recv(65536)
+                        try:
+                            data = link.sock.recv(65536)
+                        except ConnectionResetError:  # the harness has gone
+                            data = b""
                         if not data:
                             selector.unregister(link.sock)
                             continue

@@ -87,7 +87,7 @@ async function main() {
       world.runFor(Number(msg.nanos));
       return timeReport(world, boards);
     },
-    fs: (msg) => ({ image: boardNamed(boards, msg.board).fsImage().toString('base64') }),
+    fs: (msg) => ({ image: Buffer.from(boardNamed(boards, msg.board).fsImage()).toString('base64') }),
     stop: () => { stopping = true; setImmediate(() => process.exit(0)); return timeReport(world, boards); },
   };
   const lines = createInterface({ input: process.stdin });
