@@ -347,10 +347,13 @@ export class RP2040I2C extends RPI2C {
   }
 }
 
-/** Replace rp2040js's two I2C blocks with RP2040I2C (once, before the CPU runs); returns them. */
-export function installI2C(mcu) {
+/**
+ * Replace rp2040js's I2C blocks `indices` with RP2040I2C (once, before the CPU runs and before
+ * anything wraps them); returns mcu.i2c.
+ */
+export function installI2C(mcu, indices = [0, 1]) {
   const bases = [0x40044, 0x40048];
-  for (let index = 0; index < 2; index++) {
+  for (const index of indices) {
     const old = mcu.i2c[index];
     if (old instanceof RP2040I2C) continue;
     const block = new RP2040I2C(mcu, old.name, old.irq);

@@ -18,7 +18,7 @@ import { IrqMeter } from './irq_meter.mjs';
 export class JointBus {
   constructor(board, { khz = 400, i2c = 0 } = {}) {
     this.board = board;
-    installI2C(board.rp2040);
+    installI2C(board.rp2040, [i2c]);
     this.target = board.rp2040.i2c[i2c];
     this.meter = new IrqMeter(board.rp2040, 23 + i2c);
     this.controller = new I2CController(board.clock, { khz }).attach(this.target).meterIrq(this.meter);
