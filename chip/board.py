@@ -203,6 +203,12 @@ class EmulatedPico:
             transport.close()
         return out.decode(errors="replace")
 
+    def fs_image(self, name: str | None = None) -> bytes:
+        """The board's littlefs region of flash as it is now (read it with chip.fsimage.read_image)."""
+        import base64
+
+        return base64.b64decode(self.request("fs", board=name)["image"])
+
     def stderr_text(self) -> str:
         return "\n".join(self.stderr_lines[-20:])
 

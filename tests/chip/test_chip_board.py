@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import base64
 import subprocess
 import sys
 from pathlib import Path
@@ -42,7 +41,7 @@ def test_micropython_formats_blank_flash_and_its_files_land_in_flash() -> None:
         out = pico.exec("import os\nwith open('/note.txt', 'w') as f: f.write('on flash')\n"
                         "print(os.statvfs('/')[:3])")
         assert out.strip() == "(4096, 4096, 352)"
-        image = base64.b64decode(pico.request("fs")["image"])
+        image = pico.fs_image()
     assert fsimage.read_image(image)["/note.txt"] == b"on flash"
 
 
