@@ -3,8 +3,11 @@ v1.28.0 UF2, the joint firmware deployed as `bioscara flash` deploys it). One `n
 figure, the names stable across commits. The emulator models no flash wait states: every figure is
 a lower bound for a real Pico.
 
-Each producer in PRODUCERS returns {name: value}; add figures by adding a producer. The joint
-board runs with the device models in JOINT_PLUGINS (harness plugins, see chip/README.md).
+Each producer in PRODUCERS returns {name: value}; add figures by adding a producer. The main-loop
+run's joint board has the harness plugins in JOINT_PLUGINS (device models, the bus controller: see
+chip/README.md), and each function in BEFORE_LOOP is called with the running EmulatedPico before
+the measured run starts (to start the host's bus cycle, for example); emulated time is what
+counts, so traffic a plugin schedules on the chip's clock is independent of this process's speed.
 """
 
 from __future__ import annotations
@@ -24,7 +27,8 @@ from chip.paths import missing  # noqa: E402
 
 JOINT = "J1"
 LOOP_MS = 5000  # the measured main loop, emulated milliseconds
-JOINT_PLUGINS: list[dict[str, Any]] = []  # device fakes on the joint board's pins
+JOINT_PLUGINS: list[dict[str, Any]] = []  # device models on the joint board's pins
+BEFORE_LOOP: list[Callable[[EmulatedPico], None]] = []
 
 
 def bench_image(directory: pathlib.Path) -> pathlib.Path:
@@ -55,6 +59,8 @@ def main_loop_figures() -> dict[str, float]:
     with tempfile.TemporaryDirectory() as directory:
         image = bench_image(pathlib.Path(directory))
         with EmulatedPico(image, plugins=JOINT_PLUGINS) as pico:
+            for prepare in BEFORE_LOOP:
+                prepare(pico)
             out = pico.exec(LOOP_SCRIPT.format(ms=LOOP_MS), soft_reset=True, timeout=600)
     return parse_figures(out)
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -10,8 +11,8 @@ import serial
 
 from bioscara.mpboard import MpremoteBoard
 from chip import fsimage
-from chip.board import EmulatedPico
-from chip_fixtures import requires_chip
+from chip.board import BoardSpec, EmulatedPico
+from chip.testing import requires_chip
 
 pytestmark = requires_chip
 
@@ -61,9 +62,24 @@ def test_a_prebuilt_image_boots_its_main_py(tmp_path: Path) -> None:
             console.close()
 
 
-def test_a_paused_board_steps_exactly_the_emulated_time_asked() -> None:
+def test_a_paused_board_steps_exactly_the_emulated_time_asked_and_shuts_down_cleanly() -> None:
     with EmulatedPico(paused=True) as pico:
         assert pico.seconds() == 0
         assert pico.run_for(0.05) == 0.05
         assert pico.run_for(0.05) == 0.1
         assert pico.seconds() == 0.1
+        port, process = pico.port(), pico.process
+    assert process is not None and process.returncode == 0
+    assert not os.path.exists(port)
+
+
+def test_two_boards_in_one_process_each_have_their_own_pty(tmp_path: Path) -> None:
+    image = tmp_path / "fs.img"
+    image.write_bytes(fsimage.littlefs_image({"/name.txt": b"second"}))
+    with EmulatedPico(boards=[BoardSpec("first"), BoardSpec("second", fs_image=image)]) as pico:
+        assert pico.port("first") != pico.port("second")
+        read = "import os\nprint(open('name.txt').read() if 'name.txt' in os.listdir() else 'blank')"
+        assert pico.exec(read, "first").strip() == "blank"
+        assert pico.exec(read, "second").strip() == "second"
+        boards = pico.request("time")["boards"]
+        assert abs(boards["first"]["nanos"] - boards["second"]["nanos"]) <= pico.quantum_ns

@@ -15,7 +15,7 @@ import serial
 
 from chip import fsimage
 from chip.board import EmulatedPico
-from chip_fixtures import joint_image, requires_chip  # noqa: F401 (a fixture)
+from chip.testing import joint_image, requires_chip  # noqa: F401 (a fixture)
 
 pytestmark = requires_chip
 

@@ -2,11 +2,10 @@
 
 import subprocess
 
-import pytest
+from chip.paths import CHIP_DIR
+from chip.testing import requires_chip
 
-from chip.paths import CHIP_DIR, missing
-
-pytestmark = pytest.mark.skipif(missing() is not None, reason=str(missing()))
+pytestmark = requires_chip
 
 
 def test_node_suite_passes() -> None:

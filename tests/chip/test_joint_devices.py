@@ -20,8 +20,8 @@ import serial
 
 from bioscara.firmware.pico import tmc2209 as tmc
 from chip.board import EmulatedPico
-from chip_fixtures import joint_image, requires_chip  # noqa: F401 (a fixture)
 from chip.joint_devices import JOINT_DEVICES_PLUGIN, USTEPS_PER_REV, JointDevices
+from chip.testing import joint_image, requires_chip  # noqa: F401 (a fixture)
 
 pytestmark = requires_chip
 
