@@ -83,3 +83,23 @@ def test_two_boards_in_one_process_each_have_their_own_pty(tmp_path: Path) -> No
         assert pico.exec(read, "second").strip() == "second"
         boards = pico.request("time")["boards"]
         assert abs(boards["first"]["nanos"] - boards["second"]["nanos"]) <= pico.quantum_ns
+
+
+PLUGIN = """
+export function attach(world, boards, options) {
+  const board = boards.get('pico');
+  const seen = { fired: null };
+  board.afterCycles(options.cycles, (b) => { seen.fired = b.cycles; });
+  return { name: 'probe', control(command, msg) { return { command, echo: msg.x, fired: seen.fired }; } };
+}
+"""
+
+
+def test_a_plugin_schedules_on_the_cpu_clock_and_answers_on_the_control_channel(tmp_path: Path) -> None:
+    plugin = tmp_path / "probe.mjs"
+    plugin.write_text(PLUGIN)
+    with EmulatedPico(paused=True, plugins=[{"module": str(plugin), "options": {"cycles": 125_000}}]) as pico:
+        assert pico.request("probe.look", x=5)["fired"] is None
+        pico.run_for(0.002)
+        reply = pico.request("probe.look", x=5)
+        assert (reply["command"], reply["echo"], reply["fired"]) == ("look", 5, 125_000)
