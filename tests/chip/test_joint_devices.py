@@ -2,24 +2,29 @@
 
 The board starts from the littlefs image of exactly the files `bioscara flash --joint J1` deploys
 (chip/fsimage.py; tests/chip/test_chip_joint.py runs the flash itself) and boots from /main.py;
-that boot (driver set-up, orientation check on the rotor) is the first test. The later tests reach
+that boot (driver set-up, orientation check on the rotor) is the first test, then current commands
+over the joint bus (chip-i2c's emulated controller on I2C0) reach the driver. The later tests reach
 the joint through the raw REPL (mpremote): Ctrl-C ends main.py's loop (which leaves the motor
 safe), and a script on the board builds a fresh `JointController` with `app.build(machine)` and
 runs its main loop, handing it frames with `on_frame` and `host_seen` as the I2C target adapter
-would: the command path here is the REPL, not I2C0. Every figure is taken on the emulated clock:
+would: the command path there is the REPL, not I2C0 (5-byte commands over I2C0 do not arrive
+whole yet: tests/chip/test_joint_bus.py). Every figure is taken on the emulated clock:
 pulses on the STEP pin, the TMC2209's register file and the rotor model.
 """
 
 from __future__ import annotations
 
+import struct
 import time
 from pathlib import Path
 
 import pytest
 import serial
 
+from bioscara.firmware import protocol as P
 from bioscara.firmware.pico import tmc2209 as tmc
 from chip.board import EmulatedPico
+from chip.i2c import JointBusClient, joint_bus_plugin
 from chip.joint_devices import JOINT_DEVICES_PLUGIN, USTEPS_PER_REV, JointDevices
 from chip.testing import joint_image, requires_chip  # noqa: F401 (a fixture)
 
@@ -88,24 +93,30 @@ def _read_until(port: str, marker: bytes, timeout: float) -> bytes:
 
 
 @pytest.fixture(scope="module")
-def joint(joint_image: Path):
-    """J1 booted from /main.py with its devices, then a controller of the tests' own, ready:
+def booted(joint_image: Path):
+    """J1 booted from /main.py with its devices and the joint bus controller on I2C0:
     (pico, devices, boot console text, device state after the boot)."""
-    with EmulatedPico(joint_image, plugins=[JOINT_DEVICES_PLUGIN]) as pico:
+    with EmulatedPico(joint_image, plugins=[JOINT_DEVICES_PLUGIN, joint_bus_plugin()]) as pico:
         console = _read_until(pico.port(), b"ready at 0x11", 120).decode(errors="replace")
         devices = JointDevices(pico)
-        boot_state = devices.state()
-        pico.exec(BOARD_HELPERS)
-        assert "True" in pico.exec("make()\nprint(until(lambda: core.ready, 5000))", timeout=120)
-        yield pico, devices, console, boot_state
+        yield pico, devices, console, devices.state()
+
+
+@pytest.fixture(scope="module")
+def joint(booted):
+    """After the tests on main.py: main.py stopped, a controller of the tests' own booted and ready."""
+    pico = booted[0]
+    pico.exec(BOARD_HELPERS)
+    assert "True" in pico.exec("make()\nprint(until(lambda: core.ready, 5000))", timeout=120)
+    return booted
 
 
 def board(pico: EmulatedPico, code: str, timeout: float = 120.0) -> str:
     return pico.exec(code, timeout=timeout)
 
 
-def test_boot_configures_the_driver_and_checks_orientation_on_the_rotor(joint) -> None:
-    pico, devices, console, state = joint
+def test_boot_configures_the_driver_and_checks_orientation_on_the_rotor(booted) -> None:
+    pico, devices, console, state = booted
     assert "J1 INFO J1 ready at 0x11" in console, console
     driver = state["driver"]
     writes = [name for name, _value, _t in driver["writes"]]
@@ -121,6 +132,25 @@ def test_boot_configures_the_driver_and_checks_orientation_on_the_rotor(joint) -
     # Boot ends with the driver at 0 % (CS 0) and freewheel: IHOLD_IRUN = 0.
     assert (driver["ihold"], driver["irun"]) == (0, 0)
     assert state["encoder"]["conf"] == 0x0300  # slow filter 2x (SF=3), as configured
+
+
+def test_current_commands_over_the_joint_bus_reach_the_driver(booted) -> None:
+    """The whole path: the emulated controller on I2C0 at 400 kHz, main.py's I2C target and loop,
+    the Pico backend, UART1, the TMC2209's register file."""
+    pico, devices, _, _ = booted
+    bus = JointBusClient(pico)
+    _, cs_max = tmc.current_scale(0.11, 1.5)
+    for reg, percent in ((P.SETCURRENT, 70), (P.SETHOLDCURRENT, 30)):
+        assert bus.transfer(0x11, bytes([reg, percent]), 1, gap_us=2000).ack
+    deadline = time.monotonic() + 30
+    while time.monotonic() < deadline:
+        driver = devices.state()["driver"]
+        if (driver["irun"], driver["ihold"]) == (tmc.percent_to_cs(70, cs_max), tmc.percent_to_cs(30, cs_max)):
+            break
+        time.sleep(0.2)
+    assert (driver["irun"], driver["ihold"]) == (tmc.percent_to_cs(70, cs_max), tmc.percent_to_cs(30, cs_max))
+    angle = bus.transfer(0x11, bytes([P.ANGLEMOVED]), 5, gap_us=2000)
+    assert struct.unpack("<f", angle.data[:4])[0] == 0.0  # the rotor is where the boot left it
 
 
 def test_setup_writes_the_configured_currents(joint) -> None:
