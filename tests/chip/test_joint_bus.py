@@ -15,8 +15,11 @@ import pytest
 
 from chip.board import EmulatedPico
 from chip.i2c import ChipBus, JointBusClient, joint_bus_plugin
+from chip.testing import joint_image, requires_chip  # noqa: F401 (a fixture)
 from harness import Rig
 from joint import protocol as P
+
+pytestmark = requires_chip
 
 ADDRESS = 0x11  # J1
 

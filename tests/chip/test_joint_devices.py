@@ -34,13 +34,21 @@ USTEPS_PER_DEG = USTEPS_PER_REV / 360
 
 # On the board, after main.py was interrupted: a fresh controller and its main loop in emulated time.
 BOARD_HELPERS = """
-import machine, rp2, struct, time
-from joint import app, protocol as P
+import json, machine, rp2, struct, time
+from joint import app, config, protocol as P
+
+# J1's configuration with faster boot limits, so the orientation check of every fresh controller
+# takes ~0.1 s instead of ~0.6 s of emulated time (it is tested as deployed by the first test).
+with open(config.CONFIG_FILE) as f:
+    _cfg = json.load(f)
+_cfg["boot"].update(max_velocity=200.0, max_acceleration=8000.0)
+with open("/chip_test_config.json", "w") as f:
+    json.dump(_cfg, f)
 
 def make():
     global core, cfg, log
     rp2.PIO(0).remove_program()
-    core, cfg, log = app.build(machine)
+    core, cfg, log = app.build(machine, "/chip_test_config.json")
 
 stats = [0, 0, 0]  # iterations, longest us, iterations over 4 ms (the ramp's dt clamp)
 
@@ -192,15 +200,15 @@ def _steady_rate(times_ns: list[float], skip_s: float, span_s: float) -> float:
 
 
 def _setrpm_rate(pico: EmulatedPico, devices: JointDevices, rpm: float, collect: bool) -> tuple[float, str]:
-    """Pulses/s over 300 ms of SETRPM `rpm` after a 50 ms ramp; with `collect`, a garbage
+    """Pulses/s over 200 ms of SETRPM `rpm` after a 50 ms ramp; with `collect`, a garbage
     collection half way (the firmware allocates ~320 bytes per service(), so one comes about every
     second anyway). The heap is collected before, so no other collection falls in the window."""
     board(pico, "fast()")
     devices.capture_steps(True)
-    mid = "run(150)\ngc.collect()\nrun(150)" if collect else "run(300)"
+    mid = "run(100)\ngc.collect()\nrun(100)" if collect else "run(200)"
     out = board(pico, f"import gc\ngc.collect()\nsend(P.SETRPM, 'f', {rpm})\nrun(50)\nstats[:] = [0, 0, 0]\n"
                       f"{mid}\nprint(stats)\nsend(P.SETRPM, 'f', 0.0)\nrun(50)")
-    return _steady_rate(devices.capture_steps(False), 0.05, 0.3), out.strip()
+    return _steady_rate(devices.capture_steps(False), 0.05, 0.2), out.strip()
 
 
 def test_setrpm_holds_the_speed_within_one_percent_between_collections(joint) -> None:
@@ -228,7 +236,7 @@ def test_deadman_stops_the_motor_when_the_host_goes_quiet(joint) -> None:
     board(pico, "fast()")
     devices.capture_steps(True)
     # One script: between two scripts nothing runs the main loop on the board.
-    out = board(pico, "send(P.SETRPM, 'f', 30.0)\nrun(200)\nquiet = time.ticks_us()\nrun(400, host=False)\n"
+    out = board(pico, "send(P.SETRPM, 'f', 30.0)\nrun(100)\nquiet = time.ticks_us()\nrun(150, host=False)\n"
                       "print('quiet', quiet, core.flags & P.FLAG_NOTENABLED, core.qd_set)")
     times = devices.capture_steps(False)
     assert "deadman: no I2C traffic for" in out, out
@@ -238,7 +246,7 @@ def test_deadman_stops_the_motor_when_the_host_goes_quiet(joint) -> None:
     print(f"deadman: last step {last_step_ms:.1f} ms after the host went quiet (deadman 50 ms)")
     assert 50 < last_step_ms < 50 + 40  # the deadman, then the hard stop ramp and a loop period or two
     still = devices.state()["rotor"]["position"]
-    board(pico, "run(100, host=False)")
+    board(pico, "run(30, host=False)")
     assert devices.state()["rotor"]["position"] == still
 
 
@@ -262,7 +270,7 @@ def test_encoder_nacks_during_a_move_are_dropped_samples_not_a_crash(joint) -> N
 def test_home_drives_into_the_end_stop_and_zeroes_there(joint) -> None:
     pico, devices, _, _ = joint
     board(pico, "send(P.SETUP, 'BBBB', 20, 20, 0, 0)\nsend(P.SETMAXACCELERATION, 'f', 3600.0)\nrun(5)")
-    stop = devices.stops(low=-10.0)["low"]
+    stop = devices.stops(low=-3.0)["low"]
     # J1's homing from the default arm configuration: 10 motor rpm, |PID error| > 30, 15 % current.
     out = board(pico, "send(P.HOME, 'BBBB', 0, 10, 30, 15)\nrun(5)\n"
                       "print('done', until(lambda: not core.flags & P.FLAG_BUSY, 8000), core.flags, "
@@ -277,6 +285,20 @@ def test_home_drives_into_the_end_stop_and_zeroes_there(joint) -> None:
     assert state["rotor"]["position"] == stop  # pinned at the stop, the driver ran on
     assert state["rotor"]["blockedSteps"] > 0
     assert abs(float(angle)) < 1.0  # zero is at the stop (the encoder's frame)
+
+
+@pytest.mark.xfail(strict=True, reason="a failed TMC2209 write after boot is only counted (PicoStepper.faults, "
+                                       ".fault); nothing reaches the console")
+def test_a_driver_write_failing_after_boot_is_reported_on_the_console(joint) -> None:
+    pico, devices, _, _ = joint
+    devices.driver_faults(echo=False)  # the wire to RX broken: no echo, every write fails its check
+    try:
+        out = board(pico, "send(P.SETCURRENT, 'B', 55)\nrun(20)\nprint('state', core.disabled, core.hal.faults)")
+    finally:
+        devices.driver_faults(echo=True)
+    disabled, faults = out.split("state", 1)[1].split()
+    assert (disabled, int(faults) >= 1) == ("False", True)  # no crash, the failure counted
+    assert "TMC2209" in out.split("state", 1)[0], out
 
 
 @pytest.mark.parametrize("fault, message", [
