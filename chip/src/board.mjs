@@ -9,6 +9,7 @@ import { installFlash } from './flash.mjs';
 import { BOOTROM_NAME, rp2040Dir, UF2_NAME } from './paths.mjs';
 import { uf2Blocks } from './uf2.mjs';
 import { installPL011 } from './uart.mjs';
+import { PioClock } from './pio-clock.mjs';
 import { HostCDC } from './usb-cdc.mjs';
 
 export const DEFAULT_UF2 = resolve(rp2040Dir(), UF2_NAME);
@@ -26,15 +27,17 @@ export class Board {
    * @param {string|Uint8Array} [options.fs] littlefs image written at flash offset 0xA0000
    * @param {boolean} [options.stockUsb] keep rp2040js's own USB CDC host (for tests of the fix)
    * @param {boolean} [options.stockUart] keep rp2040js's own UARTs (for tests of the fix)
+   * @param {boolean} [options.stockPio] keep rp2040js's free-running PIO (for tests of the fix)
    */
   constructor({ name = 'pico', uf2 = DEFAULT_UF2, bootrom = DEFAULT_BOOTROM, fs = null,
-    stockUsb = false, stockUart = false, logLevel = LogLevel.Error } = {}) {
+    stockUsb = false, stockUart = false, stockPio = false, logLevel = LogLevel.Error } = {}) {
     this.name = name;
     const mcu = new RP2040(); // with its own SimulationClock: each board keeps its own time
     this.rp2040 = mcu;
     this.clock = mcu.clock;
     mcu.logger = new ConsoleLogger(logLevel);
     if (!stockUart) installPL011(mcu);
+    this.pio = stockPio ? null : new PioClock(mcu, mcu.clock); // PIO on clk_sys through CLKDIV
     const rom = bytesOf(bootrom);
     mcu.loadBootrom(new Uint32Array(rom.buffer, rom.byteOffset, rom.byteLength >> 2)); // also erases flash
     installFlash(this);

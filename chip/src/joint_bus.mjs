@@ -1,0 +1,75 @@
+// The joint bus: an emulated I2C controller on a board's I2C0, as a harness plugin.
+//
+// attach(world, boards, { board = first, khz = 400, i2c = 0 }) installs RP2040I2C on that board,
+// puts a bit-timed controller on its I2C0 and meters the I2C IRQ handler. Control commands
+// (harness.mjs "i2c.<command>"):
+//   i2c.transfer {addr, write: [bytes], read: n, gapNs?}   -> one transaction's result
+//   i2c.schedule {items: [{addr, write, read, gapNs?}], repeat?: k, periodNs?}
+//        -> {results: [...]}: the items back to back (each after its gapNs), k times; with
+//           periodNs each repetition starts periodNs after the previous one started (host cycling)
+//   i2c.config {khz}                                          -> the bus clock
+// A result: {addr, write, read, ack, data, startNs, endNs, totalNs, heldNs, wireNs, bits, irqNs}
+// (times in emulated ns; heldNs is SCL held low by the target; irqNs the target CPU's time in its
+// I2C interrupt handler from the START until the handler is idle after the STOP).
+import { installI2C } from './i2c_target.mjs';
+import { I2CController } from './i2c_controller.mjs';
+import { IrqMeter } from './irq_meter.mjs';
+
+export class JointBus {
+  constructor(board, { khz = 400, i2c = 0 } = {}) {
+    this.board = board;
+    installI2C(board.rp2040, [i2c]);
+    this.target = board.rp2040.i2c[i2c];
+    this.meter = new IrqMeter(board.rp2040, 23 + i2c);
+    this.controller = new I2CController(board.clock, { khz }).attach(this.target).meterIrq(this.meter);
+  }
+
+  set khz(value) {
+    this.controller.khz = value;
+  }
+
+  get khz() {
+    return this.controller.khz;
+  }
+
+  transfer(spec) {
+    return this.controller.run(spec);
+  }
+
+  /** Items back to back, `repeat` times; with periodNs, repetitions start periodNs apart. */
+  async schedule({ items, repeat = 1, periodNs = 0 }) {
+    const results = [];
+    for (let k = 0; k < repeat; k++) {
+      const begin = this.board.nanos;
+      for (const item of items) results.push(await this.transfer(item));
+      if (periodNs) {
+        const wait = begin + periodNs - this.board.nanos;
+        if (wait > 0) await new Promise((resolve) => this.board.afterNanos(wait, resolve));
+      }
+    }
+    return results;
+  }
+}
+
+export function attach(world, boards, options = {}) {
+  const board = options.board ? boards.get(options.board) : boards.values().next().value;
+  if (!board) throw new Error(`no board ${options.board}`);
+  const bus = new JointBus(board, options);
+  return {
+    name: options.name ?? 'i2c',
+    bus,
+    control: async (command, msg) => {
+      switch (command) {
+        case 'transfer':
+          return bus.transfer(msg);
+        case 'schedule':
+          return { results: await bus.schedule(msg) };
+        case 'config':
+          if (msg.khz) bus.khz = Number(msg.khz);
+          return { khz: bus.khz };
+        default:
+          throw new Error(`unknown i2c command ${command}`);
+      }
+    },
+  };
+}
