@@ -8,7 +8,7 @@ NPM := $(shell command -v npm 2>/dev/null)
 CHIP_STAMP := chip/node_modules/.installed
 CHIP := $(if $(NPM),$(CHIP_STAMP))
 
-.PHONY: demo test bench clean
+.PHONY: demo test bench bench-chip clean browser panel-screenshot
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -23,11 +23,24 @@ $(CHIP_STAMP): chip/package.json chip/package-lock.json
 demo: $(STAMP)
 	$(BIN)/bioscara demo
 
-test: $(STAMP) $(CHIP)
+test: $(STAMP) $(CHIP) browser
 	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/python -m pytest
 
 bench: $(STAMP)
 	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/python bench/run.py
+
+# Figures measured on the emulated Pico (needs node and ../shared/rp2040; says what is missing).
+bench-chip: $(STAMP) $(CHIP)
+	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/python bench/chip_bench.py
+
+# The panel's web test drives Debian's chromium; install it where this machine lets us (root, apt).
+browser:
+	@command -v chromium >/dev/null 2>&1 || { [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1 && \
+	  { apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null; } || \
+	  echo "chromium is not installed: the panel's browser test will be skipped"; }
+
+panel-screenshot: $(STAMP)
+	$(BIN)/python -m bioscara.panel.screenshot docs/panel.svg
 
 clean:
 	rm -rf $(VENV) build *.egg-info chip/node_modules

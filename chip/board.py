@@ -10,6 +10,7 @@ to the harness reports emulated time, pauses and steps the boards, and stops the
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import itertools
 import json
@@ -97,7 +98,7 @@ class EmulatedPico:
             master, slave = os.openpty()
             tty.setraw(slave)  # no echo or line editing: the board's bytes pass as they are
             os.set_blocking(master, False)
-            mine.setblocking(False)
+            mine.setblocking(True)  # sendall waits while the harness is busy: no input is lost
             self.links[spec.name] = _Link(spec.name, master, slave, os.ttyname(slave), mine)
             child_socks.append(theirs)
             boards.append(spec.config(theirs.fileno()))  # pass_fds keeps the number in the child
@@ -120,7 +121,7 @@ class EmulatedPico:
             raise ChipError(f"the emulated Pico did not start: {self.stderr_text() or 'no output'}") from None
         if ready.get("event") != "ready":
             self.close()
-            raise ChipError(f"the emulated Pico did not start: {ready}")
+            raise ChipError(f"the emulated Pico did not start: {self.stderr_text() or ready}")
         return self
 
     def close(self) -> None:
@@ -137,7 +138,7 @@ class EmulatedPico:
             thread.join(timeout=5)
         for link in self.links.values():
             for fd in (link.master, link.slave):
-                with _ignored_oserror():
+                with contextlib.suppress(OSError):
                     os.close(fd)
             link.sock.close()
         self.links.clear()
@@ -188,13 +189,14 @@ class EmulatedPico:
     def resume(self) -> float:
         return float(self.request("resume")["seconds"])
 
-    def exec(self, code: str, name: str | None = None, timeout: float = 60.0) -> str:
-        """Runs `code` in the board's raw REPL (mpremote's transport); returns its output."""
+    def exec(self, code: str, name: str | None = None, timeout: float = 60.0, soft_reset: bool = False) -> str:
+        """Runs `code` in the board's raw REPL (mpremote's transport); returns its output.
+        `soft_reset`: interrupt main.py and start from a fresh heap first, as mpremote does."""
         from mpremote.transport_serial import SerialTransport
 
         transport = SerialTransport(self.port(name), baudrate=115200)
         try:
-            transport.enter_raw_repl(soft_reset=False)
+            transport.enter_raw_repl(soft_reset=soft_reset)
             out, error = transport.exec_raw(code, timeout=timeout)
             if error:
                 raise ChipError(f"the board raised: {error.decode(errors='replace').strip()}")
@@ -248,25 +250,28 @@ class EmulatedPico:
         while not self._stop.is_set():
             for key, _ in selector.select(timeout=0.05):
                 link, side = key.data
-                try:
-                    if side == "pty":
+                if side == "pty":
+                    try:
                         data = os.read(link.master, 65536)
-                        if data:
-                            link.sock.sendall(data)
-                    else:
-                        try:
-                            data = link.sock.recv(65536)
-                        except ConnectionResetError:  # the harness has gone
-                            data = b""
-                        if not data:
-                            selector.unregister(link.sock)
+                    except (BlockingIOError, InterruptedError):
+                        continue
+                    except OSError as error:
+                        if error.errno == errno.EIO:  # no one has the pty open: nothing to read
                             continue
-                        link.backlog += data
-                except BlockingIOError:
-                    pass
-                except OSError as error:
-                    if error.errno not in (errno.EIO, errno.EAGAIN):
                         raise
+                    try:
+                        link.sock.sendall(data)
+                    except OSError:  # the harness has gone: what was typed goes nowhere
+                        selector.unregister(link.master)
+                    continue
+                try:
+                    data = link.sock.recv(65536)
+                except OSError:  # the harness has gone
+                    data = b""
+                if not data:
+                    selector.unregister(link.sock)
+                    continue
+                link.backlog += data
             for link in self.links.values():
                 self._drain_backlog(link)
         selector.close()
@@ -281,11 +286,3 @@ class EmulatedPico:
             del link.backlog[:written]
         if len(link.backlog) > PTY_BACKLOG:
             del link.backlog[:-PTY_BACKLOG]
-
-
-class _ignored_oserror:
-    def __enter__(self) -> None:
-        return None
-
-    def __exit__(self, kind: type[BaseException] | None, *rest: object) -> bool:
-        return kind is not None and issubclass(kind, OSError)

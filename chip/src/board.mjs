@@ -115,23 +115,28 @@ export class Board {
     return () => this.usbListeners.delete(listener);
   }
 
-  /** Executes instructions (and sleeps through WFI) until emulated time `nanos`. */
+  /**
+   * Executes instructions (and sleeps through WFI) until emulated time `nanos`. Between alarms the
+   * clock is advanced in place; alarms fire through the clock's own tick, as rp2040js's Simulator
+   * does it, at the first instruction boundary at or after their time.
+   */
   runUntil(nanos) {
-    const { clock } = this;
-    const core = this.rp2040.core;
-    let cycleNanos = this.cycleNanos;
-    let checked = this.rp2040.clkSys;
-    while (clock.nanos < nanos) {
+    const { clock, rp2040: mcu } = this;
+    const core = mcu.core;
+    while (clock.nanosCounter < nanos) {
       if (core.waiting) {
         const next = clock.nextAlarm ? clock.nextAlarm.nanos : nanos;
-        clock.tick(Math.max(0, Math.min(next, nanos) - clock.nanos));
-      } else {
-        clock.tick(core.executeInstruction() * cycleNanos);
-        if (this.rp2040.clkSys !== checked) {
-          checked = this.rp2040.clkSys;
-          cycleNanos = this.cycleNanos;
-        }
+        clock.tick(Math.max(0, Math.min(next, nanos) - clock.nanosCounter));
+        continue;
       }
+      const cycleNanos = 1e9 / mcu.clkSys;
+      for (;;) {
+        const next = clock.nextAlarm;
+        const stop = next !== null && next.nanos < nanos ? next.nanos : nanos;
+        if (clock.nanosCounter >= stop || core.waiting) break;
+        clock.nanosCounter += core.executeInstruction() * cycleNanos;
+      }
+      clock.tick(0); // fire the alarms that are due
     }
   }
 }

@@ -19,7 +19,9 @@ import { pathToFileURL } from 'node:url';
 import { resolve } from 'node:path';
 import { Board, World } from './board.mjs';
 
-const WALL_SLICE_MS = 20; // free-running: yield to I/O this often
+// Free-running: yield to I/O at least this often, and at once when a board has sent USB data, so
+// a program talking to a board over its pty waits for the emulator as little as possible.
+const WALL_SLICE_MS = 2;
 
 function send(message) {
   process.stdout.write(`${JSON.stringify(message)}\n`);
@@ -35,10 +37,12 @@ async function main() {
   const config = JSON.parse(process.argv[2] ?? '{}');
   const world = new World({ quantumNanos: config.quantumNanos ?? 10_000 });
   const boards = new Map();
+  let usbSent = false;
   for (const spec of config.boards ?? [{ name: 'pico' }]) {
     const board = world.add(new Board(spec));
     boards.set(board.name, board);
     if (spec.usbFd != null) connectUsb(board, spec.usbFd);
+    board.onUsb(() => { usbSent = true; });
   }
   const controls = new Map();
   for (const plugin of config.plugins ?? []) {
@@ -58,7 +62,8 @@ async function main() {
     if (paused || stopping) return;
     const until = performance.now() + WALL_SLICE_MS;
     let ahead = false;
-    while (performance.now() < until) {
+    usbSent = false;
+    while (performance.now() < until && !usbSent) {
       const limit = realtime ? emulatedStart + (performance.now() - wallStart) * 1e6 : Infinity;
       if (world.nanos >= limit) {
         ahead = true;
@@ -97,7 +102,8 @@ async function main() {
     try {
       msg = JSON.parse(line);
       const [prefix, command] = String(msg.cmd).split('.', 2);
-      const handler = command ? controls.get(prefix)?.control.bind(null, command) : handlers[msg.cmd];
+      const plugin = command ? controls.get(prefix) : null;
+      const handler = plugin ? (m) => plugin.control(command, m) : handlers[msg.cmd];
       if (!handler) throw new Error(`unknown command ${msg.cmd}`);
       send({ id: msg.id, ok: true, ...(await handler(msg)) });
     } catch (error) {

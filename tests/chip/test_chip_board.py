@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -10,7 +11,10 @@ import serial
 
 from bioscara.mpboard import MpremoteBoard
 from chip import fsimage
-from chip.board import EmulatedPico
+from chip.board import BoardSpec, EmulatedPico
+from chip.testing import requires_chip
+
+pytestmark = requires_chip
 
 
 def test_mpremote_runs_code_on_the_board_through_its_pty() -> None:
@@ -58,9 +62,44 @@ def test_a_prebuilt_image_boots_its_main_py(tmp_path: Path) -> None:
             console.close()
 
 
-def test_a_paused_board_steps_exactly_the_emulated_time_asked() -> None:
+def test_a_paused_board_steps_exactly_the_emulated_time_asked_and_shuts_down_cleanly() -> None:
     with EmulatedPico(paused=True) as pico:
         assert pico.seconds() == 0
         assert pico.run_for(0.05) == 0.05
         assert pico.run_for(0.05) == 0.1
         assert pico.seconds() == 0.1
+        port, process = pico.port(), pico.process
+    assert process is not None and process.returncode == 0
+    assert not os.path.exists(port)
+
+
+def test_two_boards_in_one_process_each_have_their_own_pty(tmp_path: Path) -> None:
+    image = tmp_path / "fs.img"
+    image.write_bytes(fsimage.littlefs_image({"/name.txt": b"second"}))
+    with EmulatedPico(boards=[BoardSpec("first"), BoardSpec("second", fs_image=image)]) as pico:
+        assert pico.port("first") != pico.port("second")
+        read = "import os\nprint(open('name.txt').read() if 'name.txt' in os.listdir() else 'blank')"
+        assert pico.exec(read, "first").strip() == "blank"
+        assert pico.exec(read, "second").strip() == "second"
+        boards = pico.request("time")["boards"]
+        assert abs(boards["first"]["nanos"] - boards["second"]["nanos"]) <= pico.quantum_ns
+
+
+PLUGIN = """
+export function attach(world, boards, options) {
+  const board = boards.get('pico');
+  const seen = { fired: null };
+  board.afterCycles(options.cycles, (b) => { seen.fired = b.cycles; });
+  return { name: 'probe', control(command, msg) { return { command, echo: msg.x, fired: seen.fired }; } };
+}
+"""
+
+
+def test_a_plugin_schedules_on_the_cpu_clock_and_answers_on_the_control_channel(tmp_path: Path) -> None:
+    plugin = tmp_path / "probe.mjs"
+    plugin.write_text(PLUGIN)
+    with EmulatedPico(paused=True, plugins=[{"module": str(plugin), "options": {"cycles": 125_000}}]) as pico:
+        assert pico.request("probe.look", x=5)["fired"] is None
+        pico.run_for(0.002)
+        reply = pico.request("probe.look", x=5)
+        assert (reply["command"], reply["echo"], reply["fired"]) == ("look", 5, 125_000)

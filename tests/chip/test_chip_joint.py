@@ -15,6 +15,9 @@ import serial
 
 from chip import fsimage
 from chip.board import EmulatedPico
+from chip.testing import joint_image, requires_chip  # noqa: F401 (a fixture)
+
+pytestmark = requires_chip
 
 TMC_MISSING = b"J1 ERROR motor fault, joint disabled until reset: TMCError('TMC2209 UART: no clean echo"
 
