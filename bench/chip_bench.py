@@ -23,11 +23,12 @@ sys.path[:0] = [str(ROOT)]
 from bioscara import flash  # noqa: E402
 from chip import fsimage  # noqa: E402
 from chip.board import EmulatedPico  # noqa: E402
+from chip.joint_devices import JOINT_DEVICES_PLUGIN  # noqa: E402
 from chip.paths import missing  # noqa: E402
 
 JOINT = "J1"
 LOOP_MS = 5000  # the measured main loop, emulated milliseconds
-JOINT_PLUGINS: list[dict[str, Any]] = []  # device models on the joint board's pins
+JOINT_PLUGINS: list[dict[str, Any]] = [JOINT_DEVICES_PLUGIN]  # TMC2209, AS5600, rotor on its pins
 BEFORE_LOOP: list[Callable[[EmulatedPico], None]] = []
 
 

@@ -9,8 +9,12 @@
 // the pico-sdk sets it) TX_EMPTY is raised only when the byte from the shift register has gone out
 // and the FIFO is at or below IC_TX_TL, as the silicon does, instead of when the command is popped.
 // Targets (addresses 7-bit) implement: start(read) -> ack, write(byte) -> ack, read() -> byte,
-// stop(). An address no target claims is NACKed (ABRT_7B_ADDR_NOACK). MicroPython's rp2 port
-// bit-bangs zero-length writes (I2C.scan()) on the GPIOs, which this bus does not see. Not modelled: clock
+// stop(). An address no target claims is NACKed (ABRT_7B_ADDR_NOACK).
+// The bus's pull-ups hold the `pullups` pins high (rp2040js models no pad pulls on inputs).
+// MicroPython's rp2 port bit-bangs zero-length writes on the GPIOs (I2C.scan(), and the STOP it
+// sends after a failed register-address write): with the pull-ups those finish at once instead of
+// waiting out the clock-stretch timeout, but the targets here do not see them (scan() finds
+// nothing). Not modelled: clock
 // stretching by targets, arbitration, SDA hold/setup times, rise times (a real bus is a little slower).
 
 const IC_FS_SPKLEN = 0xa0;
@@ -19,8 +23,9 @@ const R_TX_EMPTY = 1 << 4;
 const SPEED_STANDARD = 1;
 
 export class TimedI2CController {
-  constructor(board, index) {
+  constructor(board, index, { pullups = [] } = {}) {
     this.board = board;
+    for (const pin of pullups) board.rp2040.gpio[pin].setInputValue(true);
     const i2c = board.rp2040.i2c[index];
     this.i2c = i2c;
     this.targets = new Map();

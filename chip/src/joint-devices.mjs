@@ -11,7 +11,7 @@ export class JointDevices {
     this.board = board;
     this.driver = new TMC2209(board, { uart: 1, node });
     this.rotor = new Rotor(this.driver, { offsetCounts, encoderSign });
-    this.encoderBus = new TimedI2CController(board, 1);
+    this.encoderBus = new TimedI2CController(board, 1, { pullups: [6, 7] });
     this.encoder = this.encoderBus.attach(AS5600_ADDRESS, new AS5600(() => this.rotor.counts(), { seed }));
   }
 

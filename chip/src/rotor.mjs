@@ -4,12 +4,13 @@
 // Units: usteps, 1/256 full step of a 200-step motor (51 200 per revolution, the firmware's unit);
 // the AS5600 sees 4096 counts per revolution, 12.5 usteps a count.
 // Mechanics: the rotor sits at its equilibrium, the driver position minus a slip that is a whole
-// number of electrical periods (4 full steps, 1024 usteps). An end stop pins it: when the driver
-// runs on past it by more than half an electrical period the rotor slips one period (it loses 4
-// full steps, as a blocked stepper does) and stays at the stop; once the driver comes back, the
-// rotor follows again, offset by the slip. With the driver off (ENN high, TOFF 0) it drops the
-// steps and the rotor keeps its place. No inertia or load lag: the rotor is where the last
-// microstep put it.
+// number of electrical periods (4 full steps, 1024 usteps). An end stop holds it back: while the
+// driver runs on past it the rotor stays at the stop until the lead exceeds half an electrical
+// period; then the field pulls it back one period (it loses 4 full steps and falls up to 2 full
+// steps off the stop, as a blocked stepper buzzes) and it follows forward again. Once the driver
+// comes back the rotor follows, offset by the slip; a stop taken away lets it snap to the field at
+// once. With the driver off (ENN high, TOFF 0) the steps are dropped and the rotor keeps its place.
+// No inertia or load lag: the rotor is where the last microstep put it.
 export const USTEPS_PER_REV = 51200;
 const PERIOD = 1024;
 
@@ -33,6 +34,14 @@ export class Rotor {
   }
 
   follow(field, nanos) {
+    const before = this.position;
+    this.place(field);
+    if (this.position === before) this.blockedSteps++;
+    if (this.capture && this.capture.length < 2_000_000) this.capture.push(nanos);
+  }
+
+  /** The rotor at its equilibrium for driver position `field`, held back by the stops. */
+  place(field) {
     let free = field - this.slip;
     let pos = free;
     if (this.high !== null && free > this.high) {
@@ -48,13 +57,7 @@ export class Rotor {
       }
       pos = Math.max(free, this.low);
     }
-    if (pos === this.position) this.blockedSteps++;
     this.position = pos;
-    if (this.capture && this.capture.length < 2_000_000) this.capture.push(nanos);
-  }
-
-  /** The driver stopped powering the coils: the rotor stays, the slip is re-taken later. */
-  released() {
   }
 
   /** The encoder's view in counts (0..4095 after wrapping by the sensor). */
@@ -71,6 +74,7 @@ export class Rotor {
     const at = (deg) => (deg === null || deg === undefined ? null : this.position + (deg * USTEPS_PER_REV) / 360);
     this.low = at(lowDeg);
     this.high = at(highDeg);
+    this.place(this.driver.position); // a removed stop lets the rotor snap to the field at once
   }
 
   state() {

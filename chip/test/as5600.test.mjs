@@ -40,7 +40,9 @@ test('the angle follows the source; a NACK is an OSError on the board', { skip: 
   devices.rotor.position = 51200 / 4; // a quarter turn: +1024 counts
   assert.equal(word(repl.exec('i2c.readfrom_mem_into(0x36, 0x0c, b2)\nprint(b2[0] << 8 | b2[1])'))[0], 2024);
   devices.control('encoder_faults', { nack: 1 });
-  assert.match(repl.exec('try:\n    i2c.readfrom_mem_into(0x36, 0x0c, b2)\nexcept OSError as e:\n    print("OSError", e)'), /OSError/);
+  const nacked = repl.exec('t = time.ticks_us()\ntry:\n    i2c.readfrom_mem_into(0x36, 0x0c, b2)\nexcept OSError as e:\n    print("OSError", e, time.ticks_diff(time.ticks_us(), t))');
+  assert.match(nacked, /OSError \[Errno 5\] EIO/); // EIO: the address was not acknowledged
+  assert.ok(Number(nacked.trim().split(' ').pop()) < 1000, `${nacked}: an abort, not a timeout`);
   assert.equal(word(repl.exec('i2c.readfrom_mem_into(0x36, 0x0c, b2)\nprint(b2[0] << 8 | b2[1])'))[0], 2024);
 });
 

@@ -1,32 +1,35 @@
 """The Pico backend on the emulated Pico against the joint's device fakes (chip/src/joint-devices.mjs).
 
-The firmware is deployed as users deploy it (`bioscara flash <pty> --joint J1`) and boots from
-/main.py; its boot (orientation check) is the first test. The later tests reach the joint through
-the raw REPL (mpremote): Ctrl-C ends main.py's loop (which leaves the motor safe), and a script on
-the board builds a fresh `JointController` with `app.build(machine)` and runs its main loop,
-handing it frames with `on_frame` as the I2C target adapter would (the I2C0 target is not
-exercised here). Every figure is taken on the emulated clock: steps on the STEP pin, the TMC2209's
-register file and the rotor model.
+The board starts from the littlefs image of exactly the files `bioscara flash --joint J1` deploys
+(chip/fsimage.py; tests/chip/test_chip_joint.py runs the flash itself) and boots from /main.py;
+that boot (driver set-up, orientation check on the rotor) is the first test, then current commands
+over the joint bus (chip-i2c's emulated controller on I2C0) reach the driver. The later tests reach
+the joint through the raw REPL (mpremote): Ctrl-C ends main.py's loop (which leaves the motor
+safe), and a script on the board builds a fresh `JointController` with `app.build(machine)` and
+runs its main loop, handing it frames with `on_frame` and `host_seen` as the I2C target adapter
+would: the command path there is the REPL, not I2C0 (5-byte commands over I2C0 do not arrive
+whole yet: tests/chip/test_joint_bus.py). Every figure is taken on the emulated clock:
+pulses on the STEP pin, the TMC2209's register file and the rotor model.
 """
 
 from __future__ import annotations
 
-import subprocess
-import sys
+import struct
 import time
 from pathlib import Path
 
 import pytest
 import serial
 
+from bioscara.firmware import protocol as P
 from bioscara.firmware.pico import tmc2209 as tmc
 from chip.board import EmulatedPico
+from chip.i2c import JointBusClient, joint_bus_plugin
 from chip.joint_devices import JOINT_DEVICES_PLUGIN, USTEPS_PER_REV, JointDevices
-from chip.paths import missing
+from chip.testing import joint_image, requires_chip  # noqa: F401 (a fixture)
 
-pytestmark = pytest.mark.skipif(missing() is not None, reason=str(missing()))
+pytestmark = requires_chip
 
-BIOSCARA = Path(sys.executable).with_name("bioscara")
 USTEPS_PER_DEG = USTEPS_PER_REV / 360
 
 # On the board, after main.py was interrupted: a fresh controller and its main loop in emulated time.
@@ -39,13 +42,24 @@ def make():
     rp2.PIO(0).remove_program()
     core, cfg, log = app.build(machine)
 
+stats = [0, 0, 0]  # iterations, longest us, iterations over 4 ms (the ramp's dt clamp)
+
 def run(ms, host=True):
     end = time.ticks_add(time.ticks_ms(), ms)
     nxt = time.ticks_ms()
+    last = time.ticks_us()
     while time.ticks_diff(end, time.ticks_ms()) > 0:
         if host:
             core.host_seen()
         core.service()
+        now = time.ticks_us()
+        took = time.ticks_diff(now, last)
+        last = now
+        stats[0] += 1
+        if took > stats[1]:
+            stats[1] = took
+        if took > 4000:
+            stats[2] += 1
         nxt = time.ticks_add(nxt, 1)
         while time.ticks_diff(nxt, time.ticks_ms()) > 0:
             machine.idle()
@@ -79,28 +93,30 @@ def _read_until(port: str, marker: bytes, timeout: float) -> bytes:
 
 
 @pytest.fixture(scope="module")
-def joint():
-    """A booted J1 on the emulated Pico with its devices: (pico, devices, boot console text)."""
-    with EmulatedPico(plugins=[JOINT_DEVICES_PLUGIN]) as pico:
-        flashed = subprocess.run([str(BIOSCARA), "flash", pico.port(), "--joint", "J1"],
-                                 capture_output=True, text=True, timeout=300)
-        assert flashed.returncode == 0, flashed.stdout + flashed.stderr
+def booted(joint_image: Path):
+    """J1 booted from /main.py with its devices and the joint bus controller on I2C0:
+    (pico, devices, boot console text, device state after the boot)."""
+    with EmulatedPico(joint_image, plugins=[JOINT_DEVICES_PLUGIN, joint_bus_plugin()]) as pico:
         console = _read_until(pico.port(), b"ready at 0x11", 120).decode(errors="replace")
         devices = JointDevices(pico)
-        boot_state = devices.state()
-        pico.exec(BOARD_HELPERS)
-        yield pico, devices, console, boot_state
+        yield pico, devices, console, devices.state()
+
+
+@pytest.fixture(scope="module")
+def joint(booted):
+    """After the tests on main.py: main.py stopped, a controller of the tests' own booted and ready."""
+    pico = booted[0]
+    pico.exec(BOARD_HELPERS)
+    assert "True" in pico.exec("make()\nprint(until(lambda: core.ready, 5000))", timeout=120)
+    return booted
 
 
 def board(pico: EmulatedPico, code: str, timeout: float = 120.0) -> str:
-    t0, e0 = time.monotonic(), pico.seconds()
-    out = pico.exec(code, timeout=timeout)
-    print(f"[{time.monotonic() - t0:.1f} s wall, {pico.seconds() - e0:.2f} s emulated] {code[:40]!r}")
-    return out
+    return pico.exec(code, timeout=timeout)
 
 
-def test_boot_configures_the_driver_and_checks_orientation_on_the_rotor(joint) -> None:
-    pico, devices, console, state = joint
+def test_boot_configures_the_driver_and_checks_orientation_on_the_rotor(booted) -> None:
+    pico, devices, console, state = booted
     assert "J1 INFO J1 ready at 0x11" in console, console
     driver = state["driver"]
     writes = [name for name, _value, _t in driver["writes"]]
@@ -118,9 +134,28 @@ def test_boot_configures_the_driver_and_checks_orientation_on_the_rotor(joint) -
     assert state["encoder"]["conf"] == 0x0300  # slow filter 2x (SF=3), as configured
 
 
+def test_current_commands_over_the_joint_bus_reach_the_driver(booted) -> None:
+    """The whole path: the emulated controller on I2C0 at 400 kHz, main.py's I2C target and loop,
+    the Pico backend, UART1, the TMC2209's register file."""
+    pico, devices, _, _ = booted
+    bus = JointBusClient(pico)
+    _, cs_max = tmc.current_scale(0.11, 1.5)
+    for reg, percent in ((P.SETCURRENT, 70), (P.SETHOLDCURRENT, 30)):
+        assert bus.transfer(0x11, bytes([reg, percent]), 1, gap_us=2000).ack
+    deadline = time.monotonic() + 30
+    while time.monotonic() < deadline:
+        driver = devices.state()["driver"]
+        if (driver["irun"], driver["ihold"]) == (tmc.percent_to_cs(70, cs_max), tmc.percent_to_cs(30, cs_max)):
+            break
+        time.sleep(0.2)
+    assert (driver["irun"], driver["ihold"]) == (tmc.percent_to_cs(70, cs_max), tmc.percent_to_cs(30, cs_max))
+    angle = bus.transfer(0x11, bytes([P.ANGLEMOVED]), 5, gap_us=2000)
+    assert struct.unpack("<f", angle.data[:4])[0] == 0.0  # the rotor is where the boot left it
+
+
 def test_setup_writes_the_configured_currents(joint) -> None:
     pico, devices, _, _ = joint
-    board(pico, "make()\nuntil(lambda: core.ready, 5000)\nsend(P.SETUP, 'BBBB', 60, 25, 0, 0)\nrun(5)")
+    board(pico, "send(P.SETUP, 'BBBB', 60, 25, 0, 0)\nrun(5)")
     vsense, cs_max = tmc.current_scale(0.11, 1.5)
     driver = devices.state()["driver"]
     assert (driver["irun"], driver["ihold"]) == (tmc.percent_to_cs(60, cs_max), tmc.percent_to_cs(25, cs_max))
@@ -130,7 +165,7 @@ def test_setup_writes_the_configured_currents(joint) -> None:
 
 def test_moveangle_turns_the_rotor_the_commanded_angle(joint) -> None:
     pico, devices, _, _ = joint
-    board(pico, "make()\nuntil(lambda: core.ready, 5000)\nfast()")
+    board(pico, "fast()")
     before = devices.state()
     out = board(pico, "a0 = core.hal.angle_moved()\nsend(P.MOVEANGLE, 'f', 90.0)\nrun(20)\n"
                       "print(until(lambda: not core.positioning, 3000), core.hal.angle_moved() - a0)")
@@ -156,21 +191,41 @@ def _steady_rate(times_ns: list[float], skip_s: float, span_s: float) -> float:
     return float(slope)
 
 
-def test_setrpm_holds_the_speed_within_one_percent(joint) -> None:
-    pico, devices, _, _ = joint
-    board(pico, "make()\nuntil(lambda: core.ready, 5000)\nfast()")
+def _setrpm_rate(pico: EmulatedPico, devices: JointDevices, rpm: float, collect: bool) -> tuple[float, str]:
+    """Pulses/s over 300 ms of SETRPM `rpm` after a 50 ms ramp; with `collect`, a garbage
+    collection half way (the firmware allocates ~320 bytes per service(), so one comes about every
+    second anyway). The heap is collected before, so no other collection falls in the window."""
+    board(pico, "fast()")
     devices.capture_steps(True)
-    board(pico, "send(P.SETRPM, 'f', 30.0)\nrun(700)\nsend(P.SETRPM, 'f', 0.0)\nrun(100)")
-    times = devices.capture_steps(False)
-    rate = _steady_rate(times, 0.1, 0.5)
+    mid = "run(150)\ngc.collect()\nrun(150)" if collect else "run(300)"
+    out = board(pico, f"import gc\ngc.collect()\nsend(P.SETRPM, 'f', {rpm})\nrun(50)\nstats[:] = [0, 0, 0]\n"
+                      f"{mid}\nprint(stats)\nsend(P.SETRPM, 'f', 0.0)\nrun(50)")
+    return _steady_rate(devices.capture_steps(False), 0.05, 0.3), out.strip()
+
+
+def test_setrpm_holds_the_speed_within_one_percent_between_collections(joint) -> None:
+    pico, devices, _, _ = joint
+    rate, loop = _setrpm_rate(pico, devices, 30.0, collect=False)
     expected = 30 / 60 * USTEPS_PER_REV  # usteps/s, one pulse each at MRES 256
-    print(f"SETRPM 30: {rate:.1f} pulses/s, expected {expected:.1f} ({(rate / expected - 1) * 100:+.3f} %)")
+    print(f"SETRPM 30: {rate:.1f} pulses/s, expected {expected:.1f} ({(rate / expected - 1) * 100:+.3f} %); "
+          f"main loop [iterations, longest us, over 4 ms] {loop}")
+    assert abs(rate / expected - 1) < 0.01
+
+
+@pytest.mark.xfail(strict=True, reason="a garbage collection (~17 ms) outlasts the ramp's 4-period dt clamp, "
+                                       "so the ramp loses the difference: issue 8's figures, fixed elsewhere")
+def test_setrpm_holds_the_speed_within_one_percent_across_a_collection(joint) -> None:
+    pico, devices, _, _ = joint
+    rate, loop = _setrpm_rate(pico, devices, 30.0, collect=True)
+    expected = 30 / 60 * USTEPS_PER_REV
+    print(f"SETRPM 30 with a collection: {rate:.1f} pulses/s ({(rate / expected - 1) * 100:+.3f} %); "
+          f"main loop [iterations, longest us, over 4 ms] {loop}")
     assert abs(rate / expected - 1) < 0.01
 
 
 def test_deadman_stops_the_motor_when_the_host_goes_quiet(joint) -> None:
     pico, devices, _, _ = joint
-    board(pico, "make()\nuntil(lambda: core.ready, 5000)\nfast()")
+    board(pico, "fast()")
     devices.capture_steps(True)
     # One script: between two scripts nothing runs the main loop on the board.
     out = board(pico, "send(P.SETRPM, 'f', 30.0)\nrun(200)\nquiet = time.ticks_us()\nrun(400, host=False)\n"
@@ -187,10 +242,26 @@ def test_deadman_stops_the_motor_when_the_host_goes_quiet(joint) -> None:
     assert devices.state()["rotor"]["position"] == still
 
 
+def test_encoder_nacks_during_a_move_are_dropped_samples_not_a_crash(joint) -> None:
+    pico, devices, _, _ = joint
+    board(pico, "fast()")
+    start = devices.state()["rotor"]["position"]
+    devices.encoder_faults(nack=30)
+    out = board(pico, "a0 = core.hal.angle_moved()\nsend(P.MOVEANGLE, 'f', 45.0)\nrun(20)\n"
+                      "print('done', until(lambda: not core.positioning, 3000), core.disabled, "
+                      "core.hal._enc.errors, core.hal.angle_moved() - a0)")
+    done, disabled, errors, angle = out.split("done", 1)[1].split()
+    moved = (devices.state()["rotor"]["position"] - start) / USTEPS_PER_DEG
+    print(f"45 deg move with 30 encoder NACKs: encoder {angle} deg, rotor {moved:.3f} deg")
+    assert (done, disabled) == ("True", "False")
+    assert int(errors) == 30
+    assert abs(float(angle) - moved) < 0.1  # the count stayed right across the missed samples
+    assert abs(moved - 45.0) < 1.0
+
+
 def test_home_drives_into_the_end_stop_and_zeroes_there(joint) -> None:
     pico, devices, _, _ = joint
-    board(pico, "make()\nuntil(lambda: core.ready, 5000)\n"
-                "send(P.SETUP, 'BBBB', 20, 20, 0, 0)\nsend(P.SETMAXACCELERATION, 'f', 3600.0)\nrun(5)")
+    board(pico, "send(P.SETUP, 'BBBB', 20, 20, 0, 0)\nsend(P.SETMAXACCELERATION, 'f', 3600.0)\nrun(5)")
     stop = devices.stops(low=-10.0)["low"]
     # J1's homing from the default arm configuration: 10 motor rpm, |PID error| > 30, 15 % current.
     out = board(pico, "send(P.HOME, 'BBBB', 0, 10, 30, 15)\nrun(5)\n"
@@ -221,20 +292,3 @@ def test_a_device_fault_at_boot_disables_the_joint_with_a_message(joint, fault, 
     assert "motor fault, joint disabled until reset" in out and message in out, out
     assert out.split("state", 1)[1].split() == ["True", "True", str(0x0C | 0x08)]
     assert not devices.state()["driver"]["enabled"]  # ENN high: the bridges are off
-
-
-def test_encoder_nacks_during_a_move_are_dropped_samples_not_a_crash(joint) -> None:
-    pico, devices, _, _ = joint
-    board(pico, "make()\nuntil(lambda: core.ready, 5000)\nfast()")
-    start = devices.state()["rotor"]["position"]
-    devices.encoder_faults(nack=30)
-    out = board(pico, "a0 = core.hal.angle_moved()\nsend(P.MOVEANGLE, 'f', 45.0)\nrun(20)\n"
-                      "print('done', until(lambda: not core.positioning, 3000), core.disabled, "
-                      "core.hal._enc.errors, core.hal.angle_moved() - a0)")
-    done, disabled, errors, angle = out.split("done", 1)[1].split()
-    moved = (devices.state()["rotor"]["position"] - start) / USTEPS_PER_DEG
-    print(f"45 deg move with 30 encoder NACKs: encoder {angle} deg, rotor {moved:.3f} deg")
-    assert (done, disabled) == ("True", "False")
-    assert int(errors) == 30
-    assert abs(float(angle) - moved) < 0.1  # the count stayed right across the missed samples
-    assert abs(moved - 45.0) < 1.0
