@@ -39,7 +39,8 @@ class Transaction:
     addr: int
     write: bytes
     read_len: int
-    ack: bool  # False: the address or a written byte was NAKed (STOP followed)
+    ack: bool  # False: the address or a written byte was NAKed (STOP followed), or timed out
+    timed_out: bool  # the target held SCL past the controller's stretch timeout (35 ms)
     data: bytes
     start_us: float
     total_us: float  # START to the end of STOP, stretching included
@@ -52,6 +53,7 @@ class Transaction:
     def from_reply(cls, r: dict[str, Any]) -> Transaction:
         irq = r.get("irqNs")
         return cls(addr=r["addr"], write=bytes(r["write"]), read_len=r["read"], ack=r["ack"],
+                   timed_out=bool(r.get("timedOut")),
                    data=bytes(r["data"]), start_us=r["startNs"] / 1e3, total_us=r["totalNs"] / 1e3,
                    scl_held_us=r["heldNs"] / 1e3, wire_us=r["wireNs"] / 1e3, bits=r["bits"],
                    irq_cpu_us=None if irq is None else irq / 1e3)
@@ -76,7 +78,7 @@ class JointBusClient:
         return Transaction.from_reply(reply)
 
     def schedule(self, items: Iterable[tuple[int, bytes | None, int]], *, repeat: int = 1,
-                 period_us: float = 0.0, gap_us: float = 0.0, timeout: float = 600.0) -> list[Transaction]:
+                 period_us: float = 0.0, gap_us: float = 0.0, timeout: float = 120.0) -> list[Transaction]:
         """`items` (addr, write, read_len) back to back, `repeat` times; with `period_us` each
         repetition starts that long after the previous one started (a host cycling at a rate)."""
         specs = [self._spec(a, w, r, gap_us) for a, w, r in items]

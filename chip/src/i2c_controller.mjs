@@ -21,9 +21,13 @@ export class I2CController {
    * @param clock an rp2040js SimulationClock (the target board's), in nanoseconds
    * @param khz bus clock in kHz (100, 400, 1000)
    */
-  constructor(clock, { khz = 400 } = {}) {
+  constructor(clock, { khz = 400, stretchTimeoutNs = 35e6 } = {}) {
     this.clock = clock;
     this.khz = khz;
+    // How long a target may hold SCL before the controller gives up on the transaction (SMBus
+    // tTIMEOUT max 35 ms). A target that still holds SCL keeps the bus busy: later transactions
+    // wait for it, up to the same limit each, and fail with timedOut.
+    this.stretchTimeoutNs = stretchTimeoutNs;
     this.targets = [];
     this.queue = [];
     this.current = null;
@@ -46,13 +50,13 @@ export class I2CController {
   }
 
   /**
-   * Queue a transaction; `done(result)` gets { addr, write, read, ack, data, startNs, endNs,
-   * totalNs, heldNs, wireNs, bits, irqNs }. ack is false when the address or a written byte was
-   * NAKed (the controller then sends STOP). Transactions run in order, each starting once the
-   * previous one has ended and `gapNs` more have passed.
+   * Queue a transaction; `done(result)` gets { addr, write, read, ack, timedOut, data, startNs,
+   * endNs, totalNs, heldNs, wireNs, bits, irqNs }. ack is false when the address or a written byte
+   * was NAKed (the controller then sends STOP) or SCL was held past stretchTimeoutNs (timedOut). Transactions run in order, each starting once the
+   * previous one has ended and `gapNs` more have passed, and not before emulated time `atNs`.
    */
-  transfer({ addr, write = [], read = 0, gapNs = 0 }, done) {
-    this.queue.push({ addr, write: Array.from(write), read, gapNs, done });
+  transfer({ addr, write = [], read = 0, gapNs = 0, atNs = 0 }, done) {
+    this.queue.push({ addr, write: Array.from(write), read, gapNs, atNs, done });
     if (!this.current) this.next();
   }
 
@@ -68,7 +72,7 @@ export class I2CController {
       return;
     }
     this.current = job;
-    this.after(job.gapNs, () => this.begin(job));
+    this.after(Math.max(job.gapNs, job.atNs - this.clock.nanos), () => this.begin(job));
   }
 
   after(ns, fn) {
@@ -99,16 +103,43 @@ export class I2CController {
     if (result !== null) {
       settled = true;
       fn(result);
+      return;
     }
+    this.after(this.stretchTimeoutNs, () => {
+      if (settled) return;
+      settled = true;
+      job.heldNs += this.clock.nanos - since;
+      job.timedOut = true;
+      job.ack = false;
+      this.stop(job);
+    });
+  }
+
+  get sclHeld() {
+    return this.targets.some((t) => t.holdingScl);
   }
 
   begin(job) {
     job.startNs = this.clock.nanos;
     job.heldNs = 0;
     job.ack = true;
+    job.timedOut = false;
     job.data = [];
     job.irqStart = this.irqMeters.map((m) => m.totalNs);
     this.target = null;
+    if (this.sclHeld) {
+      // A target still holds SCL from an earlier transaction: the bus is busy until it lets go.
+      job.waitedNs = (job.waitedNs ?? 0) + 10_000;
+      if (job.waitedNs > this.stretchTimeoutNs) {
+        job.heldNs = job.waitedNs;
+        job.timedOut = true;
+        job.ack = false;
+        this.finish(job);
+      } else {
+        this.after(10_000, () => this.begin(job));
+      }
+      return;
+    }
     const writing = job.write.length > 0 || job.read === 0;
     for (const t of this.targets) t.busStart(false);
     this.bits(1, () => (writing ? this.address(job, false) : this.address(job, true)));
@@ -178,13 +209,17 @@ export class I2CController {
   stop(job) {
     this.bits(1, () => {
       for (const t of this.targets) t.busStop();
-      job.endNs = this.clock.nanos;
-      job.totalNs = job.endNs - job.startNs;
-      job.bits = wireBits(job.write.length, job.read);
-      job.wireNs = job.bits * this.bitNs;
-      this.finishIrq(job);
-      this.next();
+      this.finish(job);
     });
+  }
+
+  finish(job) {
+    job.endNs = this.clock.nanos;
+    job.totalNs = job.endNs - job.startNs;
+    job.bits = wireBits(job.write.length, job.read);
+    job.wireNs = job.bits * this.bitNs;
+    this.finishIrq(job);
+    this.next();
   }
 
   /**
@@ -218,6 +253,7 @@ function resultOf(job) {
     write: job.write,
     read: job.read,
     ack: job.ack,
+    timedOut: job.timedOut,
     data: job.data,
     startNs: job.startNs,
     endNs: job.endNs,

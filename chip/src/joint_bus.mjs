@@ -32,22 +32,37 @@ export class JointBus {
     return this.controller.khz;
   }
 
+  /** What the bus is doing, for diagnosis. */
+  state() {
+    const t = this.target;
+    const c = this.controller;
+    return {
+      nanos: this.board.nanos, queued: c.queue.length, busy: !!c.current,
+      holdingScl: t.holdingScl, readHold: !!t.readHold, rxHold: !!t.rxHold, txFlushed: t.txFlushed,
+      rxLevel: t.rxFIFO.itemCount, txLevel: t.txFIFO.itemCount, raw: t.intRaw, mask: t.intEnable,
+      enabled: t.enable & 1, con: t.control, irqEntries: this.meter.entries, irqIdle: this.meter.idle,
+      irqStack: this.meter.t.stack.slice(),
+    };
+  }
+
   transfer(spec) {
     return this.controller.run(spec);
   }
 
-  /** Items back to back, `repeat` times; with periodNs, repetitions start periodNs apart. */
-  async schedule({ items, repeat = 1, periodNs = 0 }) {
-    const results = [];
+  /**
+   * Items back to back, `repeat` times; with periodNs, repetitions start periodNs apart. All are
+   * queued at once, so they follow each other on the emulated clock, not on the host's.
+   */
+  schedule({ items, repeat = 1, periodNs = 0 }) {
+    const t0 = this.board.nanos;
+    const jobs = [];
     for (let k = 0; k < repeat; k++) {
-      const begin = this.board.nanos;
-      for (const item of items) results.push(await this.transfer(item));
-      if (periodNs) {
-        const wait = begin + periodNs - this.board.nanos;
-        if (wait > 0) await new Promise((resolve) => this.board.afterNanos(wait, resolve));
-      }
+      items.forEach((item, i) => {
+        const atNs = periodNs && i === 0 ? t0 + k * periodNs : 0;
+        jobs.push(new Promise((resolve) => this.controller.transfer({ ...item, atNs }, resolve)));
+      });
     }
-    return results;
+    return Promise.all(jobs);
   }
 }
 
@@ -64,6 +79,8 @@ export function attach(world, boards, options = {}) {
           return bus.transfer(msg);
         case 'schedule':
           return { results: await bus.schedule(msg) };
+        case 'state':
+          return bus.state();
         case 'config':
           if (msg.khz) bus.khz = Number(msg.khz);
           return { khz: bus.khz };

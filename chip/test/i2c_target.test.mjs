@@ -219,3 +219,20 @@ test('IC_CLR_INTR clears RESTART_DET with the others', () => {
   reg.read(IC_CLR_INTR);
   assert.equal(reg.read(IC_RAW_INTR_STAT) & (R_RESTART_DET | R_STOP_DET | R_START_DET | R_RX_DONE), 0);
 });
+
+test('a target that never answers RD_REQ: the controller gives up after its stretch timeout, the bus stays busy until SCL is let go', () => {
+  const { mcu, reg, bus } = board();
+  bus.stretchTimeoutNs = 1e6;
+  const first = run(mcu, bus, { addr: ADDR, write: [1], read: 1 });
+  assert.equal(first.timedOut, true);
+  assert.equal(first.ack, false);
+  assert.ok(first.heldNs >= 1e6 && first.heldNs < 1.01e6);
+  assert.ok(mcu.i2c[0].holdingScl, 'the target still holds SCL');
+  const second = run(mcu, bus, { addr: ADDR, write: [2] });
+  assert.equal(second.timedOut, true, 'no START while SCL is held');
+  reg.write(IC_DATA_CMD, 0x33); // software answers at last: SCL is released
+  assert.equal(mcu.i2c[0].holdingScl, false);
+  const third = run(mcu, bus, { addr: ADDR, write: [3] });
+  assert.equal(third.ack, true);
+  assert.equal(third.timedOut, false);
+});
