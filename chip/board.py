@@ -69,7 +69,9 @@ class EmulatedPico:
 
     def __init__(self, fs_image: Path | None = None, *, boards: list[BoardSpec] | None = None,
                  plugins: list[dict[str, Any]] | None = None, quantum_ns: int = 10_000,
-                 paused: bool = False, startup_timeout: float = 30.0) -> None:
+                 paused: bool = False, realtime: bool = True, startup_timeout: float = 30.0) -> None:
+        """`paused`: start stopped (step with run_for); `realtime`: a free-running board never runs
+        ahead of wall time (off: as fast as this machine allows, idle time included)."""
         problem = missing()
         if problem:
             raise ChipError(problem)
@@ -77,6 +79,7 @@ class EmulatedPico:
         self.plugins = plugins or []
         self.quantum_ns = quantum_ns
         self.paused = paused
+        self.realtime = realtime
         self.startup_timeout = startup_timeout
         self.links: dict[str, _Link] = {}
         self.process: subprocess.Popen[bytes] | None = None
@@ -103,7 +106,7 @@ class EmulatedPico:
             child_socks.append(theirs)
             boards.append(spec.config(theirs.fileno()))  # pass_fds keeps the number in the child
         config = {"boards": boards, "plugins": self.plugins, "quantumNanos": self.quantum_ns,
-                  "paused": self.paused}
+                  "paused": self.paused, "realtime": self.realtime}
         env = dict(os.environ, BIOSCARA_RP2040=str(rp2040_dir()))
         self.process = subprocess.Popen(
             ["node", str(HARNESS), json.dumps(config)], cwd=CHIP_DIR, env=env,
