@@ -6,6 +6,14 @@ supervision (`supervise.py`) and packs the reply caches the IRQ serves. Its writ
 reads are wrapped in `critical` sections.
 """
 
+try:
+    import micropython
+except ImportError:  # CPython: the emitter decorators do nothing
+    class micropython:
+        @staticmethod
+        def native(function):
+            return function
+
 from .fixed import ANGLE_Q, RPM_Q, pack_q
 from .irq import COUNTER_MASK, MOTION_BLOCKED, QUEUE_SLOTS, SLOT, SLOT_FLAGS, SLOT_HALTS, SLOT_STOPS
 from .protocol import (
@@ -21,6 +29,7 @@ class MainLoop:
         """The reply payload bytes the IRQ path serves for register `addr` (None: not readable)."""
         return self._cache[addr]
 
+    @micropython.native
     def service(self):
         """One main-loop iteration; call it every millisecond or faster."""
         now = self.clock.ticks_ms()
@@ -48,6 +57,7 @@ class MainLoop:
         self.ready = True
         self.log.error("motor fault, joint disabled until reset: %r" % (exc,))
 
+    @micropython.native
     def _service_motor(self, now):
         clock = self.clock
         self.hal.update()
@@ -78,6 +88,7 @@ class MainLoop:
         self.flags &= ~mask
         self._irq_on(state)
 
+    @micropython.native
     def _refresh_caches(self):
         """Pack the HAL's values into the reply caches, each only when it changed."""
         hal = self.hal
