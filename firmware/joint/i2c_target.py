@@ -13,6 +13,14 @@ Event handling (see reference/i2c-facts.md section 1.4):
   which gets a pad byte. END_READ closes the transaction.
 """
 
+try:
+    import micropython
+except ImportError:  # CPython: the emitter decorators do nothing
+    class micropython:
+        @staticmethod
+        def native(function):
+            return function
+
 from .irq import COUNTER_MASK
 from .protocol import MAX_FRAME, MAX_REPLY
 
@@ -63,6 +71,7 @@ class I2CTargetAdapter:
     def deinit(self):
         self._target.irq(None, trigger=0, hard=True)
 
+    @micropython.native
     def _irq(self, target):
         events = self._events.flags()
         if events & IRQ_ADDR_MATCH_WRITE:

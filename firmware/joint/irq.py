@@ -6,6 +6,14 @@ reply already shows the command's effect, as the original firmware's did), copie
 a preallocated queue slot and answers from reply bytes the main loop packed in advance.
 """
 
+try:
+    import micropython
+except ImportError:  # CPython: the emitter decorators do nothing
+    class micropython:
+        @staticmethod
+        def native(function):
+            return function
+
 from .protocol import (
     BY_ADDR, FLAG_ERROR, FLAG_NOTENABLED, FLAG_STALL, HOMEOFFSET, LASTERROR, MAX_FRAME, PING, REJECT_BUSY,
     REJECT_DISABLED, REJECT_NONE, REJECT_QUEUE_FULL, REJECT_UNKNOWN_REGISTER, STOP,
@@ -52,6 +60,7 @@ class IrqPath:
         """A transaction addressed to this joint ended (feeds the deadman)."""
         self.transactions = (self.transactions + 1) & COUNTER_MASK
 
+    @micropython.native
     def on_frame(self, frame, n):
         """A write of n bytes (register + payload) ended. `frame` holds at most MAX_FRAME bytes."""
         if n == 0:
@@ -126,6 +135,7 @@ class IrqPath:
         cache[2] = self.rejects & 0xFF
         cache[3] = self.rejects >> 8
 
+    @micropython.native
     def reply_into(self, out):
         """Write the reply (payload + flags) right-aligned at the end of `out`; return its length."""
         end = len(out) - 1

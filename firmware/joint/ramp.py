@@ -21,6 +21,14 @@ use amax for acceleration and deceleration alike; HOLD keeps v. step() integrate
 exactly, so the result does not depend on how dt is sliced.
 """
 
+try:
+    import micropython
+except ImportError:  # CPython: the emitter decorators do nothing
+    class micropython:
+        @staticmethod
+        def native(function):
+            return function
+
 import math
 
 try:
@@ -180,6 +188,7 @@ class TickRamp:
     def position_reached(self):
         return self.mode == POSITIONING and self.v == 0 and self.x == self.xtarget and self.xf == 0
 
+    @micropython.native
     def tick(self):
         v = self.v
         mode = self.mode
@@ -224,10 +233,14 @@ class TickRamp:
                         un = self.vmax
                     if un == 0:
                         return  # vmax 0: parked short of the target
-            self._advance(s * ((u + un) >> 1))
+            xf = self.xf + s * ((u + un) >> 1)
+            self.x += xf >> 16
+            self.xf = xf & 0xFFFF
             self.v = s * un
         elif mode == HOLD:
-            self._advance(v)
+            xf = self.xf + v
+            self.x += xf >> 16
+            self.xf = xf & 0xFFFF
         else:
             vt = self.vmax if mode == VELOCITY_POS else -self.vmax
             am = self.amax
@@ -239,13 +252,10 @@ class TickRamp:
                 vn = v - am
                 if vn < vt:
                     vn = vt
-            self._advance((v + vn) >> 1)
+            xf = self.xf + ((v + vn) >> 1)  # trapezoid rule, Q16 usteps
+            self.x += xf >> 16
+            self.xf = xf & 0xFFFF
             self.v = vn
-
-    def _advance(self, dq16):
-        xf = self.xf + dq16
-        self.x += xf >> 16
-        self.xf = xf & 0xFFFF
 
     def _land(self):
         self.x = self.xtarget

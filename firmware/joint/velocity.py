@@ -13,6 +13,14 @@ Hardware-neutral: the simulated motor and the Pico backend feed it encoder count
 sampling rate.
 """
 
+try:
+    import micropython
+except ImportError:  # CPython: the emitter decorators do nothing
+    class micropython:
+        @staticmethod
+        def native(function):
+            return function
+
 
 class VelocityEstimator:
     def __init__(self, rate_hz, kp=120.0, ki=1900.0):
@@ -65,6 +73,7 @@ class FixedVelocityEstimator:
         self._vel = 0
         self.value = 0
 
+    @micropython.native
     def update(self, count):
         rate = self._rate
         vel = self._vel
