@@ -84,7 +84,8 @@ def test_commands_are_applied_through_the_shared_core_with_the_legacy_checks():
     assert rig.motor.calls == [("move_steps", 1234)]
     rig.motor.angle = -12.5
     rig.motor.rpm = 100.25
-    rig.tick()
+    for _ in range(4):  # the speed caches refresh one per iteration in turn
+        rig.tick()
     flags, _, position, velocity, _ = rig.state()
     assert position == -800 and velocity == 802
 

@@ -95,11 +95,6 @@ def test_every_register_reads_as_in_the_simulator(joint_bus: JointBusClient) -> 
     assert_same_replies(joint_bus, register_reads())
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "MicroPython's rp2 driver handles START_DET before RX_FULL in one interrupt: while the hard "
-    "IRQ handler of the first bytes is still running, the last byte and the repeated START arrive "
-    "together, END_WRITE closes the frame without that byte and it becomes a frame of its own. "
-    "Every 5-byte command (SETUP, SETRPM, MOVETOANGLE, ...) is rejected at 400 kHz (chip/README.md)."))
 def test_every_command_is_answered_as_in_the_simulator(joint_bus: JointBusClient) -> None:
     assert_same_replies(joint_bus, commands())
 
