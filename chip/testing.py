@@ -1,7 +1,11 @@
-"""pytest helpers for the chip tests: skip when the emulated Pico cannot run; the deployed joint image.
+"""pytest helpers for the chip tests, loaded as a plugin (`-p chip.testing` in pyproject.toml), so
+its fixtures are there in every test module: skip when the emulated Pico cannot run; the deployed
+joint image.
 
-    from chip.testing import joint_image, requires_chip  # noqa: F401 (joint_image is a fixture)
+    from chip.testing import requires_chip
     pytestmark = requires_chip
+
+    def test_x(joint_image): ...   # J1's littlefs image, as `bioscara flash --joint J1` leaves it
 """
 
 from __future__ import annotations

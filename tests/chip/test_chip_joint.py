@@ -15,7 +15,7 @@ import serial
 
 from chip import fsimage
 from chip.board import EmulatedPico
-from chip.testing import joint_image, requires_chip  # noqa: F401 (a fixture)
+from chip.testing import requires_chip
 
 pytestmark = requires_chip
 
