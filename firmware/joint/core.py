@@ -20,7 +20,7 @@ from .loop import MainLoop
 from .protocol import (
     ACK, BY_ADDR, CHECKORIENTATION, CLEARSTALL, DISABLECLOSEDLOOP, DISABLESTALLGUARD,
     ENABLECLOSEDLOOP, ENABLESTALLGUARD, FLAG_BUSY, FLAGS_AT_BOOT, HOME, IDENTITY, MOVEANGLE,
-    MOVESTEPS, MOVETOANGLE, PING, PROTOCOL_VERSION, SETBRAKEMODE, SETCURRENT, SETHOLDCURRENT,
+    MOVESTEPS, MOVETOANGLE, PING, PROTOCOL, PROTOCOL_VERSION, SETBRAKEMODE, SETCURRENT, SETHOLDCURRENT,
     SETMAXACCELERATION, SETMAXDECELERATION, SETMAXVELOCITY, SETRPM, SETUP, SPEC_HASH,
 )
 from .stall import StallDetector
@@ -113,7 +113,9 @@ class JointController(IrqPath, MainLoop, Handlers, Tasks, Supervisor):
             CLEARSTALL: self._clear_stall, SETBRAKEMODE: self._set_brake_mode,
             ENABLECLOSEDLOOP: self._enable_closed_loop, DISABLECLOSEDLOOP: self._disable_closed_loop,
             CHECKORIENTATION: self._check_orientation, HOME: self._home,
+            PROTOCOL: self._select_protocol,
         }
+        self.protocol_request = 0  # a PROTOCOL write (main loop); the protocol switch (v2.py) acts on it
         if self.disabled:
             for problem in cfg.errors:
                 log.error(problem)
@@ -122,3 +124,6 @@ class JointController(IrqPath, MainLoop, Handlers, Tasks, Supervisor):
             self.ready = True
         else:
             self._start_task("boot", self._boot())
+
+    def _select_protocol(self, q, off):
+        self.protocol_request = q[off]

@@ -11,6 +11,7 @@ import importlib
 import logging
 import sys
 
+from .arm import PROTOCOLS
 from .bus import Bus
 from .commands import COMMANDS
 from .errors import BioscaraError, ConfigError
@@ -24,6 +25,9 @@ def build_parser() -> argparse.ArgumentParser:
     common.add_argument("--config", metavar="FILE", help="arm configuration (TOML; default: the shipped "
                         "J1-J4 configuration on the simulator)")
     common.add_argument("--json", action="store_true", help="machine-readable output")
+    common.add_argument("--protocol", choices=PROTOCOLS, default="auto",
+                        help="joint protocol: auto (v2 where the joint serves it), legacy or v2 "
+                        "(default: auto)")
     common.add_argument("-v", "--verbose", action="count", default=0, help="more log output")
     parser = argparse.ArgumentParser(prog="bioscara", description="Bioscara SCARA arm tools")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")

@@ -3,15 +3,18 @@
 from __future__ import annotations
 
 import argparse
+from dataclasses import asdict
 
 from rich.table import Table
 
-from ..errors import BioscaraError, NotHomedError
+from ..errors import BioscaraError, IncorrectStateError, NotHomedError
 from ..firmware import protocol as P
+from ..firmware import protocol_v2 as V
 from ..session import Session
 
 NAME = "info"
-HELP = "identity, flags, position, velocity, last rejected frame and link statistics of a joint"
+HELP = ("identity, protocol, flags, position, velocity, last rejected frame and link statistics "
+        "of a joint")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -33,6 +36,12 @@ def run(args: argparse.Namespace, session: Session) -> int:
             info["last_rejected"] = reject.text
     except BioscaraError as exc:
         info["identity"] = f"unavailable ({exc.detail})"
+        identity = None
+    if session.protocol != "legacy" and identity is not None and identity.protocol >= V.PROTOCOL_V2:
+        joint.use_v2()  # the rest is read over protocol v2
+    elif session.protocol == "v2":
+        raise IncorrectStateError("the joint does not serve protocol v2", joint=args.joint)
+    info["protocol"] = joint.protocol
     try:
         info["position"] = joint.get_position()
     except NotHomedError:
@@ -43,6 +52,9 @@ def run(args: argparse.Namespace, session: Session) -> int:
                 busy=joint.is_busy())
     link = session.bus.stats.link(jc.address)
     info["link"] = {"transactions": link.transactions, "failed_attempts": link.failed_attempts}
+    if joint.v2 is not None:
+        info["v2_link"] = asdict(joint.v2.stats)
+        joint.close()  # back to the legacy map for whoever comes next
     table = Table(title=f"{args.joint} on {session.bus.describe()}", show_header=False)
     for key, value in info.items():
         table.add_row(key, "not homed" if key == "position" and value is None else str(value))
