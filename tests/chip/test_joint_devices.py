@@ -148,15 +148,17 @@ def test_current_commands_over_the_joint_bus_reach_the_driver(booted) -> None:
     pico, devices, _, _ = booted
     bus = JointBusClient(pico)
     _, cs_max = tmc.current_scale(0.11, 1.5)
+    # The console's "ready" comes before main.py joins the bus: wait 100 ms (emulated) and PING.
+    ping = bus.transfer(0x11, bytes([P.PING]), 2, gap_us=100_000)
+    assert ping.ack and ping.data[0] == P.ACK, ping
     for reg, percent in ((P.SETCURRENT, 70), (P.SETHOLDCURRENT, 30)):
-        assert bus.transfer(0x11, bytes([reg, percent]), 1, gap_us=2000).ack
-    deadline = time.monotonic() + 30
-    while time.monotonic() < deadline:
-        driver = devices.state()["driver"]
-        if (driver["irun"], driver["ihold"]) == (tmc.percent_to_cs(70, cs_max), tmc.percent_to_cs(30, cs_max)):
-            break
-        time.sleep(0.2)
-    assert (driver["irun"], driver["ihold"]) == (tmc.percent_to_cs(70, cs_max), tmc.percent_to_cs(30, cs_max))
+        sent = bus.transfer(0x11, bytes([reg, percent]), 1, gap_us=2000)
+        # 20 ms later on the emulated clock (the main loop applies a command within a period):
+        last = bus.transfer(0x11, bytes([P.LASTERROR]), 5, gap_us=20000)
+        assert sent.ack and last.ack, (sent, last)
+    driver = devices.state()["driver"]
+    expected = (tmc.percent_to_cs(70, cs_max), tmc.percent_to_cs(30, cs_max))
+    assert (driver["irun"], driver["ihold"]) == expected, (sent, last, driver["writes"][-3:])
     angle = bus.transfer(0x11, bytes([P.ANGLEMOVED]), 5, gap_us=2000)
     assert struct.unpack("<f", angle.data[:4])[0] == 0.0  # the rotor is where the boot left it
 
@@ -280,12 +282,16 @@ def test_home_drives_into_the_end_stop_and_zeroes_there(joint) -> None:
     state = devices.state()
     devices.stops()
     done, flags, angle = out.split("done", 1)[1].split()
-    print(f"homing: {out.strip()}; rotor {state['rotor']}")
+    blocked = state["rotor"]["blockedSteps"]
+    print(f"homing: {out.strip()}; rotor {state['rotor']}; noticed after {blocked} blocked steps "
+          f"({blocked / (10 / 60 * USTEPS_PER_REV) * 1000:.0f} ms)")
     assert done == "True"
     assert "J1 INFO homed" in out
     assert not int(flags) & 0x04  # NOTHOMED cleared
-    assert state["rotor"]["position"] == stop  # pinned at the stop, the driver ran on
-    assert state["rotor"]["blockedSteps"] > 0
+    # At the stop, or fallen back by less than half an electrical period (2 full steps): a stepper
+    # driven on against a stop slips and buzzes there until the firmware notices.
+    assert 0 <= state["rotor"]["position"] - stop < 512
+    assert blocked > 0
     assert abs(float(angle)) < 1.0  # zero is at the stop (the encoder's frame)
 
 
