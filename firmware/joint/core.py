@@ -21,10 +21,12 @@ from .protocol import (
     ACK, BY_ADDR, CHECKORIENTATION, CLEARSTALL, DISABLECLOSEDLOOP, DISABLESTALLGUARD,
     ENABLECLOSEDLOOP, ENABLESTALLGUARD, FLAG_BUSY, FLAGS_AT_BOOT, HOME, IDENTITY, MOVEANGLE,
     MOVESTEPS, MOVETOANGLE, PING, PROTOCOL_VERSION, SETBRAKEMODE, SETCURRENT, SETHOLDCURRENT,
-    SETMAXACCELERATION, SETMAXDECELERATION, SETMAXVELOCITY, SETRPM, SETUP, SPEC_HASH,
+    SETMAXACCELERATION, SETMAXDECELERATION, SETMAXVELOCITY, SETRPM, SETUP, SPEC_HASH, WATCHDOG,
 )
+from .homing import HomingMonitor
 from .stall import StallDetector
-from .supervise import Supervisor
+from .supervise import DETECTOR_NAMES, Supervisor
+from .tracking import TrackingDetector
 from .tasks import Tasks
 from .version import FIRMWARE_VERSION
 
@@ -60,6 +62,20 @@ class JointController(IrqPath, MainLoop, Handlers, Tasks, Supervisor):
         self.inverted = False
         self.stallguard = False
         self.stall = StallDetector(cfg.stall)
+        st = cfg.stall
+        self.track = TrackingDetector(st.track_base, st.track_tau_ms, st.track_window, st.track_confirm,
+                                      st.track_sample_ms)
+        self.detector = DETECTOR_NAMES.index(st.detector) if st.detector in DETECTOR_NAMES else 0
+        self.homing = HomingMonitor(cfg.homing, st)
+        # HOME sensitivity noise floor, integer for the IRQ: threshold + speed * per_rpm (Q10).
+        self._homing_floor = int(cfg.boot.control_threshold)
+        self._homing_floor_q = int(cfg.homing.floor_per_rpm * 1024 + 0.5)
+        # Deadman: 0 = the original's (velocity only, cfg.deadman_ms); WATCHDOG sets every mode.
+        self.watchdog_ms = 0
+        self._safe_pending = False
+        # The host's acceleration limits (full steps/s^2), restored after a deadman stop.
+        self.max_acceleration = cfg.boot.max_acceleration
+        self.max_deceleration = cfg.boot.max_acceleration
         self.trace = None  # main loop: called with the detector after every stall-detection sample
         # Reply caches: bytes of every readable register, packed ahead of the read.
         self._cache = [None] * 256
@@ -97,6 +113,7 @@ class JointController(IrqPath, MainLoop, Handlers, Tasks, Supervisor):
         self._last_host_ms = now
         self._next_stall_ms = now
         self._stall_period_ms = int(cfg.stall.sample_time * 1000 + 0.5)
+        self._next_track_ms = now
         self._task = None
         self.task_name = None
         self._task_stops = 0  # the stop epoch the running task belongs to
@@ -110,7 +127,7 @@ class JointController(IrqPath, MainLoop, Handlers, Tasks, Supervisor):
             ENABLESTALLGUARD: self._enable_stallguard, DISABLESTALLGUARD: self._disable_stallguard,
             CLEARSTALL: self._clear_stall, SETBRAKEMODE: self._set_brake_mode,
             ENABLECLOSEDLOOP: self._enable_closed_loop, DISABLECLOSEDLOOP: self._disable_closed_loop,
-            CHECKORIENTATION: self._check_orientation, HOME: self._home,
+            CHECKORIENTATION: self._check_orientation, HOME: self._home, WATCHDOG: self._set_watchdog,
         }
         if self.disabled:
             for problem in cfg.errors:

@@ -106,3 +106,9 @@ class MotorHAL:
     def position_reached(self):
         """True when a positioning move has arrived (False in velocity mode while moving)."""
         raise NotImplementedError
+
+    def field_position(self):
+        """Usteps the driver has advanced the coil field since begin(), an int wrapping at 2**30:
+        the driver position without the closed loop's relabels (set_home does not reset it).
+        Stall and homing evidence compare it with the encoder."""
+        raise NotImplementedError

@@ -5,6 +5,8 @@ Each gets the queue and the payload offset of its slot (`loop.py` drains the que
 
 import struct
 
+from .protocol import WATCHDOG
+
 _DEG_TO_FULL_STEPS = 200.0 / 360.0
 
 
@@ -24,6 +26,8 @@ class Handlers:
         self.stallguard = False
         self.qd_set = 0.0
         self.positioning = False
+        self._safe_pending = False
+        self.track.reset()
 
     def _set_rpm(self, q, off):
         rpm = _f32(q, off)
@@ -62,11 +66,13 @@ class Handlers:
 
     def _set_max_acceleration(self, q, off):
         value = abs(_f32(q, off)) * _DEG_TO_FULL_STEPS
+        self.max_acceleration = self.max_deceleration = value
         self.hal.set_max_acceleration(value)
         self.hal.set_max_deceleration(value)
 
     def _set_max_deceleration(self, q, off):
-        self.hal.set_max_deceleration(abs(_f32(q, off)) * _DEG_TO_FULL_STEPS)
+        self.max_deceleration = abs(_f32(q, off)) * _DEG_TO_FULL_STEPS
+        self.hal.set_max_deceleration(self.max_deceleration)
 
     def _set_max_velocity(self, q, off):
         self.hal.set_max_velocity(abs(_f32(q, off)) * _DEG_TO_FULL_STEPS)
@@ -74,6 +80,7 @@ class Handlers:
     def _enable_stallguard(self, q, off):
         self.stall.sensitivity = q[off]
         self.stall.reset()
+        self.track.reset()
         self.stallguard = True
 
     def _disable_stallguard(self, q, off):
@@ -81,6 +88,7 @@ class Handlers:
 
     def _clear_stall(self, q, off):
         self.stall.reset()
+        self.track.reset()
 
     def _set_brake_mode(self, q, off):
         self.hal.set_brake_mode(q[off])
@@ -97,6 +105,10 @@ class Handlers:
         # The sign would only swap what counts as inverted: a negative angle would flip a
         # correctly wired motor into closed-loop runaway.
         self._start_task("CHECKORIENTATION", self._orientation(abs(_f32(q, off))))
+
+    def _set_watchdog(self, q, off):
+        self.watchdog_ms = q[off] | (q[off + 1] << 8)
+        struct.pack_into("<H", self._cache[WATCHDOG], 0, self.watchdog_ms)
 
     def _home(self, q, off):
         self._start_task("HOME", self._homing(q[off], q[off + 1], q[off + 2], q[off + 3]))

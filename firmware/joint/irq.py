@@ -59,6 +59,8 @@ class IrqPath:
             elif (addr != HOMEOFFSET and addr != STOP
                   and ((self._q_in - self._q_out) & COUNTER_MASK) >= QUEUE_SLOTS):
                 reason = REJECT_QUEUE_FULL
+            else:
+                reason = self._refusal(addr, frame)  # supervise.py: motion in this state, HOME limits
         if reason != REJECT_NONE:
             self._reject(addr, reason)
             return

@@ -66,6 +66,9 @@ class MainLoop:
         if diff(now, self._next_stall_ms) >= 0:
             self._next_stall_ms = self.clock.ticks_add(now, self._stall_period_ms)
             self._check_stall()
+        if diff(now, self._next_track_ms) >= 0:
+            self._next_track_ms = self.clock.ticks_add(now, self.track.sample_ms)
+            self._check_tracking()
         self._check_deadman(now)
         self._refresh_caches()
 

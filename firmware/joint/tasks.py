@@ -4,6 +4,7 @@ A task holds BUSY while it runs; the main loop steps it when its wait is over (e
 how many milliseconds to wait) or a STOP cancelled it.
 """
 
+from .homing import HOMED, OUTCOMES, RUNNING
 from .protocol import FLAG_BUSY, FLAG_NOTHOMED, FLAG_STALL, FLAGS_AT_BOOT
 
 try:
@@ -13,6 +14,8 @@ except ImportError:
         return value
 
 _HOMING_SETTLE_MS = const(500)
+_PRESS_SETTLE_MS = const(150)
+_PRESS_USTEPS = const(8)  # past the deepest point: below the control threshold
 _MOVE_TIMEOUT_MS = const(10000)
 _ORIENTATION_MAX_ROUNDS = const(10)
 _WIND_DOWN_STEPS = const(8)
@@ -132,25 +135,56 @@ class Tasks:
             hal.enable_closed_loop()
 
     def _homing(self, direction, speed, sensitivity, current):
-        """Drive into the end stop until |PID error| > sensitivity; STOP (BUSY cleared) aborts."""
+        """Drive into the end stop until homing.py sees it (the encoder stops following the field,
+        sustained); a travel limit or timeout ends it NOTHOMED, STOP (BUSY cleared) aborts it.
+        The motor holds at the homing current throughout: a back-drivable load must not fall."""
         hal = self.hal
+        monitor = self.homing
+        self.qd_set = 0.0
+        self.positioning = False
+        hal.set_current(current)
+        hal.set_hold_current(current)
         hal.stop(True)
         yield _HOMING_SETTLE_MS
-        homed = False
+        outcome = RUNNING
         if not self._cancelled():
             hal.set_rpm(speed if direction else -speed)
-            hal.set_current(current)
+            monitor.start(1 if direction else -1, speed, sensitivity, hal.field_position(),
+                          self._encoder_usteps())
+            every = monitor.sample_ms
+            tick = 0
             while not self._cancelled():
-                if abs(hal.pid_error()) > sensitivity:
-                    homed = True
-                    break
+                monitor.pid_sample(hal.pid_error())
+                tick += 1
+                if tick >= every:
+                    tick = 0
+                    outcome = monitor.sample(hal.field_position(), self._encoder_usteps())
+                    if outcome != RUNNING:
+                        break
                 yield 1
-        if homed:
+        hal.stop(True)
+        if outcome == HOMED:
+            yield from self._press_into_stop(1 if direction else -1, monitor.deepest)
+        if outcome == HOMED and not self._cancelled():
             hal.set_home()
             self._clear_flags(FLAG_NOTHOMED | FLAG_STALL)
             self.log.info("homed")
         else:
             self._set_flags(FLAG_NOTHOMED)
-            self.log.info("homing aborted")
-        hal.stop(True)
+            self.log.warn("homing ended, not homed: %s" % ("aborted by STOP" if outcome == RUNNING
+                                                          else OUTCOMES[outcome]))
         hal.set_current(self.drive_current)
+        hal.set_hold_current(self.hold_current)
+        self.track.reset()
+
+    def _press_into_stop(self, direction, deepest):
+        """The rotor rebounds off the stop and may settle short of it (up to half a pole pitch):
+        let it settle, then move the field to just past the deepest point the encoder reached, so
+        the zero is where the stop is (within the closed loop's threshold, so it does not chase)."""
+        yield _PRESS_SETTLE_MS
+        short = (deepest - self._encoder_usteps()) * direction
+        if short > 0 and not self._cancelled():
+            self.hal.move_steps(direction * (short + _PRESS_USTEPS))
+            yield 1
+            yield from self._wait_reached()
+            yield _PRESS_SETTLE_MS

@@ -19,6 +19,7 @@ class RecordingMotor(MotorHAL):
         self.ramp_rpm = 0.0
         self.error = 0.0
         self.reached = True
+        self.field = 0  # field_position(), usteps
         self.wiring = 0  # +1/-1: relative moves change `angle` like a (mis)wired motor; 0: it never moves
 
     def _record(self, name, *args):
@@ -96,6 +97,9 @@ class RecordingMotor(MotorHAL):
 
     def position_reached(self):
         return self.reached
+
+    def field_position(self):
+        return self.field
 
 
 class Rig:

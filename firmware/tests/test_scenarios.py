@@ -151,6 +151,7 @@ def test_deadman_stops_velocity_motion_when_the_host_goes_silent():
 def test_deadman_stops_a_position_move_when_the_host_goes_silent():
     rig = SimRig()
     rig.enable(current=20, accel_deg=3600.0, vel_deg=360.0)
+    rig.command("WATCHDOG", 50)  # our host's watchdog covers every mode
     rig.command("MOVETOANGLE", 3600.0)
     rig.poll(0.5)
     _silence_then_check(rig)

@@ -351,6 +351,8 @@ class Arm:
                     steps.append(lambda aj=aj: self._deactivate_joint(aj))
             elif mode is Mode.POSITION:
                 aj.command.position = aj.state.position
+                if math.isfinite(aj.state.position):  # hold it where it stands, onto the limit
+                    aj.command.position = min(max(aj.state.position, aj.joint.min), aj.joint.max)
             else:
                 aj.command.velocity = 0.0
         for step in steps:
@@ -376,8 +378,8 @@ class Arm:
         j = self[joint].joint
         if not math.isfinite(value):
             raise InvalidArgumentError(f"{mode} command must be finite, got {value}", joint=joint)
-        if mode == Mode.POSITION.value and not j.min <= value <= j.max:
-            raise InvalidArgumentError(f"position {value:g} is outside [{j.min:g}, {j.max:g}]", joint=joint)
+        if mode == Mode.POSITION.value:
+            j.within_limits(value)
         if mode == Mode.VELOCITY.value and abs(value) > j.max_velocity:
             raise InvalidArgumentError(f"|velocity| {abs(value):g} exceeds max_velocity {j.max_velocity:g}",
                                        joint=joint)

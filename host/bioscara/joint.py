@@ -29,6 +29,10 @@ from .firmware import protocol as P
 from .transmission import Transmission
 
 CACHED_FLAGS = P.FLAG_STALL | P.FLAG_BUSY | P.FLAG_NOTHOMED | P.FLAG_NOTENABLED
+# A joint resting at its end stop reads a hair beyond it: encoder noise and error at rest, and the
+# float32 motor degrees of the wire. Positions this close (motor degrees) beyond a limit count as
+# on it (they are clamped onto it), so holding a joint where it stands never fails.
+LIMIT_SLACK_DEG = 0.5
 
 
 class BrakeMode(IntEnum):
@@ -228,10 +232,23 @@ class Joint:
             raise NotHomedError("position is meaningless before homing", joint=self.name)
         return self.transmission.position(degrees)
 
+    @property
+    def limit_slack(self) -> float:
+        """How far beyond min/max (joint units) a position still counts as on the limit."""
+        return math.radians(LIMIT_SLACK_DEG) / abs(self.transmission.reduction)
+
+    def within_limits(self, position: float) -> float:
+        """`position` clamped onto [min, max] if it lies within `limit_slack` of them; raises
+        InvalidArgumentError if it is farther out or not finite."""
+        slack = self.limit_slack
+        if not (math.isfinite(position) and self.min - slack <= position <= self.max + slack):
+            raise InvalidArgumentError(f"position {position:g} is outside [{self.min:g}, {self.max:g}]",
+                                       joint=self.name)
+        return min(max(position, self.min), self.max)
+
     def set_position(self, position: float) -> None:
-        """Move to `position` (joint units) within [min, max]."""
-        if not (math.isfinite(position) and self.min <= position <= self.max):
-            raise InvalidArgumentError(f"position {position} is outside [{self.min}, {self.max}]", joint=self.name)
+        """Move to `position` (joint units) within [min, max] (see `within_limits`)."""
+        position = self.within_limits(position)
         self._require_enabled_and_homed()
         self._check_stall(self._command(P.MOVETOANGLE, self.transmission.motor_degrees(position)))
 
@@ -400,8 +417,12 @@ class Joint:
             return BioscaraError(f"the joint rejected {reg.name}", joint=self.name)
         if why.reason == P.REJECT_BUSY:
             return IncorrectStateError(f"the joint rejected {why.text}", joint=self.name)
-        if why.reason == P.REJECT_DISABLED:
+        if why.reason in (P.REJECT_DISABLED, P.REJECT_NOT_ENABLED):
             return NotEnabledError(f"the joint rejected {why.text}", joint=self.name)
+        if why.reason == P.REJECT_STALLED:
+            return StalledError(f"the joint rejected {why.text}", joint=self.name)
+        if why.reason == P.REJECT_HOMING_SENSITIVITY:
+            return InvalidArgumentError(f"the joint rejected {why.text}", joint=self.name)
         if why.reason in (P.REJECT_VALUE, P.REJECT_LENGTH):
             return InvalidArgumentError(f"the joint rejected {why.text}", joint=self.name)
         return BioscaraError(f"the joint rejected {why.text}", joint=self.name)

@@ -142,6 +142,7 @@ class SimStepper(MotorHAL):
         self._R = 0.0
         self._W = 0.0
         self._F = 0.0
+        self._fx = 0.0  # field travel in driver usteps (what field_position() reports)
         self._load = 0.0
         self._stops = (-_FAR, _FAR)
         self._obstacles = []
@@ -274,6 +275,7 @@ class SimStepper(MotorHAL):
         floor = math.floor
         T = _T_ISR
         R, W, F = self._R, self._W, self._F
+        fx = self._fx
         lo, hi, kw, cw = self._lo, self._hi, self._kwall, self._cwall
         load, fric, emf = self._load, self._fric, self._emf
         since = self._since_step
@@ -291,6 +293,7 @@ class SimStepper(MotorHAL):
                 dx = 0.0
             else:
                 dx = ramp.step(T)
+                fx += dx
                 if self._stopping and ramp.v == 0.0:
                     self._finish_stop()
             if dx != 0.0:
@@ -361,6 +364,7 @@ class SimStepper(MotorHAL):
                         ramp.xtarget = self._drv_xtarget
         self._t_next = t_next
         self._R, self._W, self._F = R, W, F
+        self._fx = fx
         self._since_step = since
         self._counts, self._pid = counts, pid
 
@@ -488,6 +492,9 @@ class SimStepper(MotorHAL):
 
     def position_reached(self):
         return self._ramp.position_reached()
+
+    def field_position(self):
+        return int(math.floor(self._fx + 0.5)) & 0x3FFFFFFF
 
     # ---- simulator hooks ---------------------------------------------------------------------
     def driver_position(self):
