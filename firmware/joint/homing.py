@@ -51,6 +51,7 @@ class HomingMonitor:
         self._timeout = 0
         self._travel = 0
         self._e = 0
+        self.start_encoder = 0
         self._direction = 1
         self.deepest = 0  # the encoder's farthest point in the homing direction: the end stop
         self._seen = False
@@ -66,6 +67,7 @@ class HomingMonitor:
         self._timeout = self._travel_ms_per_rpm // speed_rpm + _MARGIN_MS
         self._travel = 0
         self._e = encoder
+        self.start_encoder = encoder
         self._seen = False
         self.outcome = RUNNING
         self._track.reset()

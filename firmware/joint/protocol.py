@@ -286,6 +286,7 @@ IDENTITY = const(0x30)
 LASTERROR = const(0x31)
 WATCHDOG = const(0x32)
 WATCHDOG_MAX_MS = const(5000)
+HOMINGTRAVEL = const(0x33)
 
 BRAKE_FREEWHEEL = const(0)
 BRAKE_COOLBRAKE = const(1)
@@ -363,6 +364,8 @@ REGISTERS = (
              read=(Field("timeout", U16, "ms"),),
              doc="extension: host-silence timeout for every motion mode (velocity, positioning, "
                  "homing, orientation check); 0 (boot): the original's, velocity only"),
+    Register(HOMINGTRAVEL, "HOMINGTRAVEL", read=_f32("travel", _DEG),
+             doc="extension: encoder travel of the last successful homing, start to end stop"),
 )
 
 BY_ADDR = [None] * 256

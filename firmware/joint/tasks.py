@@ -4,8 +4,12 @@ A task holds BUSY while it runs; the main loop steps it when its wait is over (e
 how many milliseconds to wait) or a STOP cancelled it.
 """
 
+import struct
+
+from .hal import USTEPS_PER_DEG
 from .homing import HOMED, OUTCOMES, RUNNING
-from .protocol import FLAG_BUSY, FLAG_NOTHOMED, FLAG_STALL, FLAGS_AT_BOOT
+from .protocol import FLAG_BUSY, FLAG_NOTHOMED, FLAG_STALL, FLAGS_AT_BOOT, HOMINGTRAVEL
+from .tracking import wrapped_diff
 
 try:
     from micropython import const
@@ -166,6 +170,10 @@ class Tasks:
         if outcome == HOMED:
             yield from self._press_into_stop(1 if direction else -1, monitor.deepest)
         if outcome == HOMED and not self._cancelled():
+            travel = wrapped_diff(self._encoder_usteps(), monitor.start_encoder) / USTEPS_PER_DEG
+            state = self._irq_off()
+            struct.pack_into("<f", self._cache[HOMINGTRAVEL], 0, travel)
+            self._irq_on(state)
             hal.set_home()
             self._clear_flags(FLAG_NOTHOMED | FLAG_STALL)
             self.log.info("homed")

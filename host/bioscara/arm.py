@@ -68,6 +68,8 @@ def activate_joint(joint: Joint, config: JointConfig) -> None:
     """Enable with the configured currents, then stall detection (after SETUP, which turns it
     off) if the threshold is set, then the motion limits: the original's activate_joint."""
     joint.enable(config.drive_current, config.hold_current)
+    if config.watchdog_ms:
+        joint.set_watchdog(config.watchdog_ms)  # fed by every transaction of the control cycle
     if config.stall_threshold > 0:
         joint.enable_stallguard(config.stall_threshold)
     joint.set_max_acceleration(config.max_acceleration)
@@ -76,7 +78,8 @@ def activate_joint(joint: Joint, config: JointConfig) -> None:
 
 def make_joint(config: JointConfig, bus: Bus) -> Joint:
     return Joint(config.name, config.address, bus, reduction=config.reduction, min=config.min,
-                 max=config.max, max_velocity=config.max_velocity)
+                 max=config.max, max_velocity=config.max_velocity,
+                 homing_range_check=config.homing.range_tolerance if config.homing.check_range else None)
 
 
 class Arm:
@@ -202,6 +205,14 @@ class Arm:
 
     def _deactivate_joint(self, aj: ArmJoint) -> None:
         aj.joint.disable()
+
+    def _release_for_homing(self, aj: ArmJoint) -> None:
+        """Home mode starts: disable the joint until its homing starts, or with `homing.hold` only
+        stop it, energized at the hold current, so a back-drivable load cannot fall meanwhile."""
+        if aj.config.homing.hold:
+            aj.joint.stop()
+        else:
+            aj.joint.disable()
 
     def _start_homing(self, aj: ArmJoint, direction: float) -> None:
         homing = aj.config.homing
@@ -348,7 +359,7 @@ class Arm:
             if mode is Mode.HOME:
                 aj.command.home = 0.0
                 if active:
-                    steps.append(lambda aj=aj: self._deactivate_joint(aj))
+                    steps.append(lambda aj=aj: self._release_for_homing(aj))
             elif mode is Mode.POSITION:
                 aj.command.position = aj.state.position
                 if math.isfinite(aj.state.position):  # hold it where it stands, onto the limit

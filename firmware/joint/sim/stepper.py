@@ -181,6 +181,7 @@ class SimStepper(MotorHAL):
         self._L = 0.0
         self._V = 0.0
         self._F = 0.0
+        self._fx = 0.0  # field travel in driver usteps (what field_position() reports)
         self._gravity = load_torque
         self._ext = 0.0
         self._load = self._gl * load_torque
@@ -320,6 +321,7 @@ class SimStepper(MotorHAL):
         T = _T_ISR
         two = self._two
         R, W, L, V, F = self._R, self._W, self._L, self._V, self._F
+        fx = self._fx
         lo, hi = self._lo, self._hi
         klo, clo = self._wlo
         khi, chi = self._whi
@@ -342,6 +344,7 @@ class SimStepper(MotorHAL):
                 dx = 0.0
             else:
                 dx = ramp.step(T)
+                fx += dx
                 if self._stopping and ramp.v == 0.0:
                     self._finish_stop()
             if dx != 0.0:
@@ -466,6 +469,7 @@ class SimStepper(MotorHAL):
                         ramp.xtarget = self._drv_xtarget
         self._t_next = t_next
         self._R, self._W, self._L, self._V, self._F = R, W, L, V, F
+        self._fx = fx
         self._since_step = since
         self._counts, self._pid = counts, pid
 
@@ -593,6 +597,9 @@ class SimStepper(MotorHAL):
 
     def position_reached(self):
         return self._ramp.position_reached()
+
+    def field_position(self):
+        return int(math.floor(self._fx + 0.5)) & 0x3FFFFFFF
 
     # ---- simulator hooks ---------------------------------------------------------------------
     def driver_position(self):
