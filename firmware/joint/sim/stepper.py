@@ -178,6 +178,7 @@ class SimStepper(MotorHAL):
         self._jl = jl
         self._R = 0.0
         self._W = 0.0
+        self._field = 0.0  # usteps the driver has stepped since begin(), without XACTUAL relabels
         self._L = 0.0
         self._V = 0.0
         self._F = 0.0
@@ -245,6 +246,7 @@ class SimStepper(MotorHAL):
         currents 40 %/40 %, default profile, closed loop scheduled but inactive. A running ramp
         stops at once; the rotor and the field phase (MSCNT) stay where they are."""
         self._powered = True
+        self._field = 0.0
         self._reset_electronics()
 
     # ---- driver/encoder internals ------------------------------------------------------------
@@ -327,6 +329,7 @@ class SimStepper(MotorHAL):
         kr, cr, kl, cl, gap = self._kr, self._cr, self._kl, self._cl, self._gap
         visc_l, fric_l = self._visc_l, self._fric_l
         since = self._since_step
+        field = self._field
         isr_on = self._powered
         cl_on, thr, counts = self._cl, self._thr, self._counts
         pid, home = self._pid, self._home_raw
@@ -356,6 +359,7 @@ class SimStepper(MotorHAL):
                 else:
                     va = self._a_hold
                     visc = self._visc_hold
+            field += dx
             vf = self._fdir * dx / T
             # Mechanics: skipped while everything and the field rest, held by friction.
             moving = W != 0.0 or V != 0.0 or vf != 0.0
@@ -467,6 +471,7 @@ class SimStepper(MotorHAL):
         self._t_next = t_next
         self._R, self._W, self._L, self._V, self._F = R, W, L, V, F
         self._since_step = since
+        self._field = field
         self._counts, self._pid = counts, pid
 
     # ---- MotorHAL ----------------------------------------------------------------------------
@@ -593,6 +598,11 @@ class SimStepper(MotorHAL):
 
     def position_reached(self):
         return self._ramp.position_reached()
+
+    def field_position(self):
+        """Usteps the driver has advanced the coil field since begin(): XACTUAL without the closed
+        loop's relabels (set_home() does not reset it)."""
+        return int(math.floor(self._field + 0.5))
 
     # ---- simulator hooks ---------------------------------------------------------------------
     def driver_position(self):
