@@ -25,6 +25,7 @@ on the rotor; its counts grow with R (the connector/magnet orientation is folded
 
 Simulator hooks (not part of MotorHAL):
     rotor_angle()                  true rotor angle, motor degrees (0 = at construction)
+    slipped_periods()              electrical periods lost (pole slips) since construction
     load_angle()                   true position of the driven link in motor degrees (the rotor
                                    when there is no load model)
     set_end_stops(low_deg=None, high_deg=None)   one-sided walls on the load (None: no wall)
@@ -610,6 +611,11 @@ class SimStepper(MotorHAL):
 
     def rotor_angle(self):
         return self._R / _ANGLE_TO_STEP
+
+    def slipped_periods(self):
+        """Whole electrical periods (4 full steps) the rotor has fallen behind or run ahead of the
+        coil field since construction: nonzero once the motor has lost steps."""
+        return int(math.floor((self._F - self._R) / 1024.0 + 0.5))
 
     def load_angle(self):
         return (self._L if self._two else self._R) / _ANGLE_TO_STEP
