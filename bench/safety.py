@@ -84,7 +84,10 @@ class Rig:
         self.clock = VirtualClock()
         self.stepper = SimStepper(self.clock, seed=seed, **M.stepper_kwargs(joint, payload_kg, noise))
         self.stepper.set_end_stops(low_deg, high_deg)
-        cfg = joint_config.default(joint)
+        # The shipped per-joint config (its stall and homing constants), on the simulated motor.
+        cfg = joint_config.load(str(ROOT / "firmware" / "joint" / "configs" / f"{joint}.json"))
+        assert cfg.valid, cfg.errors
+        cfg.motor = {"backend": "sim"}
         if detector != "original" and not self._config_detector(cfg, detector):
             raise LookupError(detector)
         self.lines: list[str] = []
