@@ -4,7 +4,7 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test bench clean
+.PHONY: demo test bench bench-safety chip-costs clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -20,6 +20,13 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/python bench/run.py
+
+bench-safety: $(STAMP)
+	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/python bench/safety.py
+
+# Refresh the simulator's chip cost table from the emulated chip (needs make bench-chip).
+chip-costs: $(STAMP)
+	$(MAKE) --no-print-directory bench-chip | tee /dev/stderr | $(BIN)/python bench/chip_costs.py
 
 clean:
 	rm -rf $(VENV) build *.egg-info

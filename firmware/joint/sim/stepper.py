@@ -25,6 +25,7 @@ on the rotor; its counts grow with R (the connector/magnet orientation is folded
 
 Simulator hooks (not part of MotorHAL):
     rotor_angle()                  true rotor angle, motor degrees (0 = at construction)
+    slipped_periods()              electrical periods lost (pole slips) since construction
     load_angle()                   true position of the driven link in motor degrees (the rotor
                                    when there is no load model)
     set_end_stops(low_deg=None, high_deg=None)   one-sided walls on the load (None: no wall)
@@ -178,10 +179,10 @@ class SimStepper(MotorHAL):
         self._jl = jl
         self._R = 0.0
         self._W = 0.0
+        self._field = 0.0  # usteps the driver has stepped since begin(), without XACTUAL relabels
         self._L = 0.0
         self._V = 0.0
         self._F = 0.0
-        self._fx = 0.0  # field travel in driver usteps (what field_position() reports)
         self._gravity = load_torque
         self._ext = 0.0
         self._load = self._gl * load_torque
@@ -246,6 +247,7 @@ class SimStepper(MotorHAL):
         currents 40 %/40 %, default profile, closed loop scheduled but inactive. A running ramp
         stops at once; the rotor and the field phase (MSCNT) stay where they are."""
         self._powered = True
+        self._field = 0.0
         self._reset_electronics()
 
     # ---- driver/encoder internals ------------------------------------------------------------
@@ -321,7 +323,6 @@ class SimStepper(MotorHAL):
         T = _T_ISR
         two = self._two
         R, W, L, V, F = self._R, self._W, self._L, self._V, self._F
-        fx = self._fx
         lo, hi = self._lo, self._hi
         klo, clo = self._wlo
         khi, chi = self._whi
@@ -329,6 +330,7 @@ class SimStepper(MotorHAL):
         kr, cr, kl, cl, gap = self._kr, self._cr, self._kl, self._cl, self._gap
         visc_l, fric_l = self._visc_l, self._fric_l
         since = self._since_step
+        field = self._field
         isr_on = self._powered
         cl_on, thr, counts = self._cl, self._thr, self._counts
         pid, home = self._pid, self._home_raw
@@ -344,7 +346,6 @@ class SimStepper(MotorHAL):
                 dx = 0.0
             else:
                 dx = ramp.step(T)
-                fx += dx
                 if self._stopping and ramp.v == 0.0:
                     self._finish_stop()
             if dx != 0.0:
@@ -359,6 +360,7 @@ class SimStepper(MotorHAL):
                 else:
                     va = self._a_hold
                     visc = self._visc_hold
+            field += dx
             vf = self._fdir * dx / T
             # Mechanics: skipped while everything and the field rest, held by friction.
             moving = W != 0.0 or V != 0.0 or vf != 0.0
@@ -469,8 +471,8 @@ class SimStepper(MotorHAL):
                         ramp.xtarget = self._drv_xtarget
         self._t_next = t_next
         self._R, self._W, self._L, self._V, self._F = R, W, L, V, F
-        self._fx = fx
         self._since_step = since
+        self._field = field
         self._counts, self._pid = counts, pid
 
     # ---- MotorHAL ----------------------------------------------------------------------------
@@ -599,7 +601,9 @@ class SimStepper(MotorHAL):
         return self._ramp.position_reached()
 
     def field_position(self):
-        return int(math.floor(self._fx + 0.5)) & 0x3FFFFFFF
+        """Usteps the driver has advanced the coil field since begin(): XACTUAL without the closed
+        loop's relabels (set_home() does not reset it)."""
+        return int(math.floor(self._field + 0.5))
 
     # ---- simulator hooks ---------------------------------------------------------------------
     def driver_position(self):
@@ -607,6 +611,11 @@ class SimStepper(MotorHAL):
 
     def rotor_angle(self):
         return self._R / _ANGLE_TO_STEP
+
+    def slipped_periods(self):
+        """Whole electrical periods (4 full steps) the rotor has fallen behind or run ahead of the
+        coil field since construction: nonzero once the motor has lost steps."""
+        return int(math.floor((self._F - self._R) / 1024.0 + 0.5))
 
     def load_angle(self):
         return (self._L if self._two else self._R) / _ANGLE_TO_STEP
