@@ -72,6 +72,9 @@ class JointController(IrqPath, MainLoop, Handlers, Tasks, Supervisor):
         self._homing_floor_q = int(cfg.homing.floor_per_rpm * 1024 + 0.5)
         # Deadman: 0 = the original's (velocity only, cfg.deadman_ms); WATCHDOG sets every mode.
         self.watchdog_ms = 0
+        # usteps from the encoder's zero (set where the rotor rested after homing) to the end
+        # stop's deepest point: the host's angle is the encoder's plus this.
+        self.zero_offset = 0
         self._safe_pending = False
         # The host's acceleration limits (full steps/s^2), restored after a deadman stop.
         self.max_acceleration = cfg.boot.max_acceleration
@@ -96,6 +99,8 @@ class JointController(IrqPath, MainLoop, Handlers, Tasks, Supervisor):
         self._blocking_out = 0  # ... and taken from the queue (main loop)
         self._blocking_stops = 0  # stop epoch when the latest blocking command was accepted
         self.transactions = 0
+        self._ticks_ms = clock.ticks_ms  # bound once: the IRQ path calls it
+        self.host_ms = clock.ticks_ms()
         # Epochs (8 bits). `stops`: STOP frames (IRQ); a task or queued blocking command from an
         # older epoch is cancelled. `halts`: whatever stopped the motor (STOP in the IRQ, stall or
         # deadman in the main loop); queued motion from an older epoch is not applied.

@@ -5,6 +5,7 @@ Each gets the queue and the payload offset of its slot (`loop.py` drains the que
 
 import struct
 
+from .hal import USTEPS_PER_DEG
 from .protocol import WATCHDOG
 
 _DEG_TO_FULL_STEPS = 200.0 / 360.0
@@ -49,7 +50,7 @@ class Handlers:
     def _move_to_angle(self, q, off):
         self.q_set = _f32(q, off)
         if self._may_move():
-            self.hal.move_to_angle(self.q_set)
+            self.hal.move_to_angle(self.q_set - self.zero_offset / USTEPS_PER_DEG)
             self._positioning_started()
 
     def _positioning_started(self):

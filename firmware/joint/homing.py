@@ -73,19 +73,20 @@ class HomingMonitor:
         self._track.reset()
         self._track.update(field, encoder)
 
-    def pid_sample(self, pid_error):
-        """Every millisecond: remember whether |PID error| exceeded the sensitivity."""
+    def watch(self, pid_error, encoder):
+        """Every main-loop iteration: whether |PID error| exceeded the sensitivity, and the
+        encoder's farthest point in the homing direction (where the stop is)."""
         if pid_error > self._sensitivity or -pid_error > self._sensitivity:
             self._seen = True
+        if (encoder - self.deepest) * self._direction > 0:
+            self.deepest = encoder
 
-    def sample(self, field, encoder):
-        """Every `sample_ms`: the outcome so far (RUNNING until one is reached)."""
-        self._elapsed += self.sample_ms
+    def sample(self, field, encoder, elapsed_ms):
+        """Every `sample_ms`, `elapsed_ms` after start(): the outcome so far (RUNNING until one)."""
+        self._elapsed = elapsed_ms
         de = wrapped_diff(encoder, self._e)
         self._e = encoder
         self._travel += de
-        if (encoder - self.deepest) * self._direction > 0:
-            self.deepest = encoder
         track = self._track
         if track.update(field, encoder) and self._seen:
             self.outcome = HOMED

@@ -27,7 +27,7 @@ class MainLoop:
         now = self.clock.ticks_ms()
         if self.transactions != self._seen_transactions:
             self._seen_transactions = self.transactions
-            self._last_host_ms = now
+            self._last_host_ms = self.host_ms
         if not self.disabled:
             try:
                 self._service_motor(now)
@@ -84,7 +84,7 @@ class MainLoop:
 
     def _refresh_caches(self):
         hal = self.hal
-        angle, rpm, driver, error = hal.angle_moved(), hal.encoder_rpm(), hal.driver_rpm(), hal.pid_error()
+        angle, rpm, driver, error = self._host_angle(), hal.encoder_rpm(), hal.driver_rpm(), hal.pid_error()
         cache = self._cache
         state = self._irq_off()
         struct.pack_into("<f", cache[ANGLEMOVED], 0, angle)

@@ -44,6 +44,10 @@ class Supervisor:
     def _encoder_usteps(self):
         return int(self.hal.angle_moved() * USTEPS_PER_DEG)
 
+    def _host_angle(self):
+        """The angle the host sees (ANGLEMOVED, MOVETOANGLE): 0 at the end stop homing found."""
+        return self.hal.angle_moved() + self.zero_offset / USTEPS_PER_DEG
+
     # ---- IRQ path: no allocation ----
 
     def _refusal(self, addr, frame):

@@ -18,8 +18,9 @@ except ImportError:
         return value
 
 _HOMING_SETTLE_MS = const(500)
-_PRESS_SETTLE_MS = const(150)
-_PRESS_USTEPS = const(8)  # past the deepest point: below the control threshold
+_REST_MS = const(100)
+_REST_USTEPS = const(24)  # a few encoder counts of noise
+_SETTLE_MAX_MS = const(3000)
 _MOVE_TIMEOUT_MS = const(10000)
 _ORIENTATION_MAX_ROUNDS = const(10)
 _WIND_DOWN_STEPS = const(8)
@@ -155,26 +156,33 @@ class Tasks:
             hal.set_rpm(speed if direction else -speed)
             monitor.start(1 if direction else -1, speed, sensitivity, hal.field_position(),
                           self._encoder_usteps())
+            clock = self.clock
             every = monitor.sample_ms
-            tick = 0
+            start = clock.ticks_ms()
+            due = clock.ticks_add(start, every)
             while not self._cancelled():
-                monitor.pid_sample(hal.pid_error())
-                tick += 1
-                if tick >= every:
-                    tick = 0
-                    outcome = monitor.sample(hal.field_position(), self._encoder_usteps())
+                monitor.watch(hal.pid_error(), self._encoder_usteps())
+                now = clock.ticks_ms()
+                if clock.ticks_diff(now, due) >= 0:  # by the clock: the loop may run slower than 1 kHz
+                    due = clock.ticks_add(now, every)
+                    outcome = monitor.sample(hal.field_position(), self._encoder_usteps(),
+                                             clock.ticks_diff(now, start))
                     if outcome != RUNNING:
                         break
                 yield 1
         hal.stop(True)
         if outcome == HOMED:
-            yield from self._press_into_stop(1 if direction else -1, monitor.deepest)
+            yield from self._settle()
         if outcome == HOMED and not self._cancelled():
-            travel = wrapped_diff(self._encoder_usteps(), monitor.start_encoder) / USTEPS_PER_DEG
+            # The rotor rebounds off the stop (far, on a stiff stop behind backlash): the zero is
+            # the deepest point the encoder reached while pushing, not where the rotor came to rest.
+            rest = self._encoder_usteps()
+            travel = wrapped_diff(monitor.deepest, monitor.start_encoder) / USTEPS_PER_DEG
             state = self._irq_off()
             struct.pack_into("<f", self._cache[HOMINGTRAVEL], 0, travel)
             self._irq_on(state)
             hal.set_home()
+            self.zero_offset = wrapped_diff(rest, monitor.deepest)
             self._clear_flags(FLAG_NOTHOMED | FLAG_STALL)
             self.log.info("homed")
         else:
@@ -185,14 +193,22 @@ class Tasks:
         hal.set_hold_current(self.hold_current)
         self.track.reset()
 
-    def _press_into_stop(self, direction, deepest):
-        """The rotor rebounds off the stop and may settle short of it (up to half a pole pitch):
-        let it settle, then move the field to just past the deepest point the encoder reached, so
-        the zero is where the stop is (within the closed loop's threshold, so it does not chase)."""
-        yield _PRESS_SETTLE_MS
-        short = (deepest - self._encoder_usteps()) * direction
-        if short > 0 and not self._cancelled():
-            self.hal.move_steps(direction * (short + _PRESS_USTEPS))
+    def _settle(self):
+        """Wait (at most _SETTLE_MAX_MS) until the encoder has moved less than _REST_USTEPS in
+        _REST_MS: the rotor has come to rest after the stop."""
+        clock = self.clock
+        start = clock.ticks_ms()
+        mark = clock.ticks_ms()
+        last = self._encoder_usteps()
+        while not self._cancelled():
             yield 1
-            yield from self._wait_reached()
-            yield _PRESS_SETTLE_MS
+            now = clock.ticks_ms()
+            here = self._encoder_usteps()
+            moved = here - last
+            if moved > _REST_USTEPS or -moved > _REST_USTEPS:
+                last = here
+                mark = now
+            elif clock.ticks_diff(now, mark) >= _REST_MS:
+                return
+            if clock.ticks_diff(now, start) >= _SETTLE_MAX_MS:
+                return
