@@ -99,8 +99,8 @@ class JointController(IrqPath, MainLoop, Handlers, Tasks, Supervisor):
         self._blocking_out = 0  # ... and taken from the queue (main loop)
         self._blocking_stops = 0  # stop epoch when the latest blocking command was accepted
         self.transactions = 0
-        self._ticks_ms = clock.ticks_ms  # bound once: the IRQ path calls it
-        self.host_ms = clock.ticks_ms()
+        self._ticks_us = clock.ticks_us  # bound once: the IRQ path calls it
+        self.host_us = clock.ticks_us()
         # Epochs (8 bits). `stops`: STOP frames (IRQ); a task or queued blocking command from an
         # older epoch is cancelled. `halts`: whatever stopped the motor (STOP in the IRQ, stall or
         # deadman in the main loop); queued motion from an older epoch is not applied.
@@ -115,7 +115,7 @@ class JointController(IrqPath, MainLoop, Handlers, Tasks, Supervisor):
         # Main-loop bookkeeping.
         now = clock.ticks_ms()
         self._seen_transactions = 0
-        self._last_host_ms = now
+        self._last_host_us = self.host_us
         self._next_stall_ms = now
         self._stall_period_ms = int(cfg.stall.sample_time * 1000 + 0.5)
         self._next_track_ms = now

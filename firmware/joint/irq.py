@@ -35,7 +35,7 @@ class IrqPath:
 
     def host_seen(self):
         """A transaction addressed to this joint ended (feeds the deadman)."""
-        self.host_ms = self._ticks_ms()  # when: the deadman counts from here, not from the loop
+        self.host_us = self._ticks_us()  # when: the deadman counts from here, not from the loop
         self.transactions = (self.transactions + 1) & COUNTER_MASK
 
     def on_frame(self, frame, n):

@@ -27,7 +27,7 @@ class MainLoop:
         now = self.clock.ticks_ms()
         if self.transactions != self._seen_transactions:
             self._seen_transactions = self.transactions
-            self._last_host_ms = self.host_ms
+            self._last_host_us = self.host_us
         if not self.disabled:
             try:
                 self._service_motor(now)
@@ -69,7 +69,7 @@ class MainLoop:
         if diff(now, self._next_track_ms) >= 0:
             self._next_track_ms = self.clock.ticks_add(now, self.track.sample_ms)
             self._check_tracking()
-        self._check_deadman(now)
+        self._check_deadman()
         self._refresh_caches()
 
     def _set_flags(self, mask):

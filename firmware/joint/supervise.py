@@ -107,13 +107,14 @@ class Supervisor:
             return True
         return self.hal.driver_rpm() != 0
 
-    def _check_deadman(self, now):
+    def _check_deadman(self):
         if self._safe_pending:
             self._safe_action()
         if not self._motion_active():
             return
         timeout = self.watchdog_ms or self.cfg.deadman_ms
-        silent = self.clock.ticks_diff(now, self._last_host_ms)
+        clock = self.clock
+        silent = clock.ticks_diff(clock.ticks_us(), self._last_host_us) // 1000  # from the IRQ's stamp
         if silent < timeout or not self._halt(FLAG_NOTENABLED, transactions=self._seen_transactions):
             return
         task = self.task_name
