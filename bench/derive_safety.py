@@ -1,16 +1,16 @@
 """Derive each joint's tracking stall-detector constants and its quick-stop deceleration from the
 simulated arm's mechanics (firmware/joint/sim/mechanics.py), so they come from a procedure, not a guess.
 
-Stall detector (tracking.py: stalled when lag > base + |field speed| * tau): run the real firmware
+Stall detector (tracking.py: stalled when lag > base + min(|field speed| * tau, cap)): run the real firmware
 through unobstructed motion at the joint's configured acceleration -- velocity steps to 10 rpm ..
 top speed and back through reversals, position moves at top speed, a streamed trajectory -- with
 nominal and harsh encoder noise, and record every sample's lag and field speed. tau is the value
-(0..10 ms) that gives the lowest threshold at 10 and 30 rpm once base covers MARGIN x every lag seen
+(0..20 ms) that gives the lowest threshold at 10 and 30 rpm once base and cap cover MARGIN x every lag seen
 held over CONFIRM samples in a row. Phases in which the motor really lost position are reported and
 left out (the detector is right to stop those).
 
 Quick stop: the largest deceleration (full steps/s^2, at most the driver's 11636) from which the
-joint stops at top speed without losing position (the encoder ends within a pole pitch of the field),
+joint stops at top speed without losing position (no pole slip in the simulator),
 times 0.8.
 
     python bench/derive_safety.py            # print the constants
@@ -35,13 +35,13 @@ JOINTS = {  # top speed rpm, acceleration motor deg/s^2, drive current %, stall 
     "J3": (1146.0, 19251.0, 20, 6),
     "J4": (1146.0, 20626.0, 20, 6),
 }
-MARGIN = 1.5
+MARGIN = 2.0
+SATURATE = False  # cap the speed allowance at the largest lag seen (lower thresholds, less margin)
 MIN_BASE = 48
 SAMPLE_MS = 5
 CONFIRM = 4
 WINDOW = 64  # samples: at 10 rpm the lag can grow by 2700 usteps within it
 DRIVER_MAX_DECEL = 11636.0
-LOST = 512  # usteps between field and encoder: half an electrical period, position lost
 
 
 def _rig(joint, noise, seed):
@@ -52,21 +52,18 @@ def _rig(joint, noise, seed):
     core.set_stall_detector("tracking")
     core.track.base = 10 ** 9  # record, never stop
     core.track.tau_ms = 0
-    core.track = type(core.track)(10 ** 9, 0, WINDOW, CONFIRM, SAMPLE_MS)
+    core.track = type(core.track)(10 ** 8, 0, WINDOW, CONFIRM, SAMPLE_MS)
     return rig
 
 
 LOSSES = []  # (joint, phase): the motor lost position there, a real stall, not free motion
 
 
-def _offset(rig):
-    st = rig.stepper
-    return st.field_position() - st.angle_moved() * 51200 / 360.0
 
 
 def _record(rig, seconds, out, phase=""):
     core = rig.joint.core
-    before = _offset(rig)
+    before = rig.stepper.slipped_periods()  # the simulator's own count of pole slips
     t_end = rig.clock.seconds() + seconds
     seen = []
     while rig.clock.seconds() < t_end:
@@ -75,7 +72,7 @@ def _record(rig, seconds, out, phase=""):
         track = core.track
         if track.speed:
             seen.append((track.lag, abs(track.speed)))
-    if abs(_offset(rig) - before) > LOST:
+    if rig.stepper.slipped_periods() != before:
         LOSSES.append((rig.joint.cfg.joint, phase))
         rig.command("SETUP", *JOINTS[rig.joint.cfg.joint][2:3] * 2, 0, 0)  # re-synchronise
         rig.command("ENABLESTALLGUARD", JOINTS[rig.joint.cfg.joint][3])
@@ -101,8 +98,8 @@ def free_motion(joint, noise, seed):
         _record(rig, ramp, samples, "reversal at %g rpm" % rpm)
         rig.command("SETRPM", 0.0)
         _record(rig, ramp / 2.0, samples, "stop from %g rpm" % rpm)
-    travel = top * 6.0 * 0.5
-    for target in (travel, -travel, 0.0):
+    short = top * 6.0 * 0.5
+    for target in (short, -short, 0.0):
         rig.command("MOVETOANGLE", target)
         _record(rig, 1.5 + 2.0 * top * 6.0 / accel, samples, "move to %g deg" % target)
     for k in range(150):  # a streamed trajectory: a new velocity every 20 ms
@@ -113,14 +110,19 @@ def free_motion(joint, noise, seed):
 
 
 def fit(samples):
-    """(base, tau_ms) with the lowest 10 and 30 rpm thresholds covering MARGIN x every sample."""
+    """(base, tau_ms, cap) with the lowest 10 and 30 rpm thresholds covering MARGIN x every sample:
+    for each tau, base is what the slow samples need beyond their speed allowance, cap what the
+    largest lag needs beyond base."""
     best = None
-    for tau in range(0, 11):
+    worst = max(MARGIN * lag for lag, _ in samples)
+    for tau in range(0, 21):
         base = max(MIN_BASE, max(int(MARGIN * lag - speed * tau / SAMPLE_MS) + 1 for lag, speed in samples))
-        cost = sum(base + (rpm * 51200 / 60.0 * SAMPLE_MS / 1000.0) * tau / SAMPLE_MS for rpm in (10.0, 30.0))
+        cap = max(0, int(worst - base) + 1) if SATURATE else 1000000
+        cost = sum(base + min(cap, (rpm * 51200 / 60.0 * SAMPLE_MS / 1000.0) * tau / SAMPLE_MS)
+                   for rpm in (10.0, 30.0))
         if best is None or cost < best[0]:
-            best = (cost, base, tau)
-    return best[1], best[2]
+            best = (cost, base, tau, cap)
+    return best[1:]
 
 
 def keeps_position(joint, decel):
@@ -130,11 +132,9 @@ def keeps_position(joint, decel):
     rig.command("WATCHDOG", 20)
     rig.command("SETRPM", top)
     rig.poll(1.0 + top * 6.0 / JOINTS[joint][1], period=0.01)
-    st = rig.stepper
-    start = st.field_position() - st.angle_moved() * 51200 / 360.0
+    before = rig.stepper.slipped_periods()
     rig.bus.sleep(0.6)  # silence: the deadman's quick stop
-    end = st.field_position() - st.angle_moved() * 51200 / 360.0
-    return abs(end - start) < LOST
+    return rig.stepper.slipped_periods() == before
 
 
 def stop_deceleration(joint):
@@ -151,12 +151,13 @@ def main(argv):
         for noise in ("nominal", "harsh"):
             for seed in (1, 2):
                 samples += free_motion(joint, noise, seed)
-        base, tau = fit(samples)
+        base, tau, cap = fit(samples)
         decel = stop_deceleration(joint)
         worst = max(lag for lag, _ in samples)
-        results[joint] = {"track_base": base, "track_tau_ms": tau, "stop_deceleration": float(decel)}
-        print("%s: %d samples, largest free lag %d usteps -> track_base %d, track_tau_ms %d; "
-              "stop_deceleration %d full steps/s^2" % (joint, len(samples), worst, base, tau, decel))
+        results[joint] = {"track_base": base, "track_tau_ms": tau, "track_cap": cap,
+                          "stop_deceleration": float(decel)}
+        print("%s: %d samples, largest free lag %d usteps -> track_base %d, track_tau_ms %d, track_cap %d; "
+              "stop_deceleration %d full steps/s^2" % (joint, len(samples), worst, base, tau, cap, decel))
     for joint, phase in LOSSES:
         print("%s lost position (a real stall, excluded): %s" % (joint, phase))
     if "--write" in argv:
@@ -167,6 +168,7 @@ def main(argv):
             cfg["stop_deceleration"] = values["stop_deceleration"]
             cfg["stall"]["track_base"] = values["track_base"]
             cfg["stall"]["track_tau_ms"] = values["track_tau_ms"]
+            cfg["stall"]["track_cap"] = values["track_cap"]
             cfg["stall"]["track_confirm"] = CONFIRM
             cfg["stall"]["track_window"] = WINDOW
             cfg["stall"]["track_sample_ms"] = SAMPLE_MS

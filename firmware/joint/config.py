@@ -58,7 +58,8 @@ SCHEMA = (
         # no longer following the driver's field. Constants from tools/derive_safety_constants.py.
         ("detector", _STR, "original", DETECTORS, None),
         ("track_base", _INT, 320, 16, 100000),  # usteps of lag beyond any free-running lag
-        ("track_tau_ms", _INT, 10, 0, 1000),  # plus this many ms of field travel at the speed
+        ("track_tau_ms", _INT, 10, 0, 1000),  # plus this many ms of field travel at the speed,
+        ("track_cap", _INT, 100000, 0, 1000000),  # at most this many usteps
         ("track_window", _INT, 20, 1, 64),  # samples the lag is measured over
         ("track_confirm", _INT, 2, 1, 64),  # samples in a row above the threshold
         ("track_sample_ms", _INT, 5, 1, 100),

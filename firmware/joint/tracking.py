@@ -8,11 +8,11 @@ relabelled by the closed loop) and `encoder` the measured position in usteps:
 
     lag = (field - encoder) now - its extreme since the motion in this direction began,
           over at most the last `window` samples, taken in the direction of motion
-    stalled when lag > base + |field speed| * tau for `confirm` samples in a row
+    stalled when lag > base + min(|field speed| * tau, cap) for `confirm` samples in a row
 
 The window keeps the encoder's slow harmonic error out at low speed; the speed term covers its
-faster swing (and a tick of sampling jitter) at high speed, where the lag grows by thousands of
-usteps per sample anyway. A reversal restarts the extreme (the load angle does not change sign
+faster swing at higher speeds, up to `cap` (the error's full swing: it cannot change by more within
+any window), where the lag of a blocked rotor grows by thousands of usteps per sample anyway. A reversal restarts the extreme (the load angle does not change sign
 through one: decelerating and accelerating the other way take torque the same way). Nothing is
 judged while the field stands still.
 
@@ -39,12 +39,13 @@ def wrapped_diff(a, b):
 
 
 class TrackingDetector:
-    """base: usteps; tau_ms: speed allowance in ms of field travel; window, confirm: samples;
-    sample_ms: the sampling period the caller keeps (used for the speed allowance)."""
+    """base, cap: usteps; tau_ms: speed allowance in ms of field travel; window, confirm:
+    samples; sample_ms: the sampling period the caller keeps (used for the speed allowance)."""
 
-    def __init__(self, base, tau_ms, window, confirm, sample_ms):
+    def __init__(self, base, tau_ms, window, confirm, sample_ms, cap=1 << 28):
         self.base = int(base)
         self.tau_ms = int(tau_ms)
+        self.cap = int(cap)
         self.sample_ms = int(sample_ms)
         self.confirm = int(confirm)
         self._ring = array("i", [0] * max(1, int(window)))
@@ -112,7 +113,8 @@ class TrackingDetector:
                 if ring[k] > ext:
                     ext = ring[k]
             lag = ext - s
-        thr = self.base + (df if df > 0 else -df) * self.tau_ms // self.sample_ms
+        allowance = (df if df > 0 else -df) * self.tau_ms // self.sample_ms
+        thr = self.base + (allowance if allowance < self.cap else self.cap)
         self.lag = lag
         self.threshold = thr
         if lag > thr:
