@@ -431,7 +431,8 @@ def figures(results: list[tuple], available: Iterable[str]) -> list[tuple[str, f
         free = [(s, r) for s, r in results if isinstance(s, FreeMove) and s.detector == det]
         if det not in avail or not col:
             for name in ("collision_detect_rate", "collision_detect_rate.j1", "collision_detect_rate.j2",
-                         "collision_detect_rate.j3", "collision_detect_rate.j4", "collision_latency_ms_median",
+                         "collision_detect_rate.j3", "collision_detect_rate.j4", "collision_detect_rate.rigid",
+                         "collision_detect_rate.soft", "collision_latency_ms_median",
                          "collision_latency_ms_max", "false_stalls", "lost_steps_unobstructed"):
                 out.append((prefix + name, NAN))
             continue
@@ -439,6 +440,10 @@ def figures(results: list[tuple], available: Iterable[str]) -> list[tuple[str, f
         for joint in JOINTS:
             mine = [r for s, r in col if s.joint == joint]
             out.append((prefix + "collision_detect_rate." + joint.lower(),
+                        sum(r["detected"] for r in mine) / len(mine) if mine else NAN))
+        for stop in ("rigid", "soft"):  # not names of issue 11: the rate per obstacle kind
+            mine = [r for s, r in col if s.stop == stop]
+            out.append((prefix + "collision_detect_rate." + stop,
                         sum(r["detected"] for r in mine) / len(mine) if mine else NAN))
         lat = [r["latency_ms"] for _, r in col if r["detected"]]
         out.append((prefix + "collision_latency_ms_median", statistics.median(lat) if lat else NAN))
