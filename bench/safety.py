@@ -6,7 +6,7 @@ the arm's mechanics, firmware.sim.mechanics, and the shipped J1-J4 configuration
 
 * collision: joint x motor speed (10 rpm .. the joint's top speed) x obstacle (rigid stop block, soft)
   x payload (none, the joint's corner) x noise (nominal, harsh: encoder noise, harmonic error, ISR
-  skips) x stall detector ("original", "tracking"). The obstacle stands a little ahead of the link
+  skips; as5600: the Pico backend's 12-bit encoder) x stall detector ("original", "tracking"). The obstacle stands a little ahead of the link
   at cruise; latency is from the first contact of the link to the STALL flag.
 * false stalls: unobstructed moves at the configured limits (long moves, reversals, a streamed
   velocity trajectory at 50 Hz), per joint x payload x noise x detector: any STALL counts.
@@ -63,6 +63,7 @@ PAYLOAD = {"J1": 0.2, "J2": 1.0, "J3": 0.2, "J4": 0.2}  # kg: the corner (J2: en
 TRAVEL = {"J1": 2.0, "J2": 0.1, "J3": 2.0, "J4": 2.0}  # joint units of an unobstructed move
 SPEEDS = (10.0, 30.0, 60.0, 120.0, 250.0)
 NAN = float("nan")
+NOISES = ("nominal", "harsh", "as5600")
 
 
 def top_rpm(joint: str) -> float:
@@ -82,7 +83,10 @@ class Rig:
                  seed: int = 1, low_deg: float | None = None, high_deg: float | None = None) -> None:
         self.name = joint
         self.clock = VirtualClock()
-        self.stepper = SimStepper(self.clock, seed=seed, **M.stepper_kwargs(joint, payload_kg, noise))
+        # noise: "nominal" | "harsh" (TLE5012B) | "as5600" (the Pico backend's 12-bit encoder)
+        encoder = "as5600" if noise == "as5600" else "tle5012b"
+        self.stepper = SimStepper(self.clock, seed=seed, **M.stepper_kwargs(
+            joint, payload_kg, "nominal" if noise == "as5600" else noise, encoder))
         self.stepper.set_end_stops(low_deg, high_deg)
         # The shipped per-joint config (its stall and homing constants), on the simulated motor.
         cfg = joint_config.load(str(ROOT / "firmware" / "joint" / "configs" / f"{joint}.json"))
@@ -308,7 +312,10 @@ def homing(s: Homing) -> dict:
     reported = rig.read("ANGLEMOVED")
     true = rig.stepper.load_angle() + distance  # link displacement from its stop
     error = abs(reported - true)
-    bound = M.homing_error_bound_deg(s.joint, current, s.noise, payload)
+    if s.noise == "as5600":  # same harmonic error figures, plus one 12-bit count
+        bound = M.homing_error_bound_deg(s.joint, current, "nominal", payload) + 360.0 / 4096
+    else:
+        bound = M.homing_error_bound_deg(s.joint, current, s.noise, payload)
     return {"success": error <= bound, "false_homed": error > bound, "error_deg": error}
 
 
@@ -383,16 +390,16 @@ def matrix(full: bool = True, detectors: Iterable[str] = DETECTORS) -> list:
         for rpm in speeds(joint):
             for stop in ("rigid", "soft"):
                 for payload in (False, True):
-                    for noise in ("nominal", "harsh"):
+                    for noise in NOISES:
                         for det in dets:
                             scenarios.append(Collision(joint, rpm, stop, payload, noise, det))
         for kind in ("moves", "stream"):
             for payload in (False, True):
-                for noise in ("nominal", "harsh"):
+                for noise in NOISES:
                     for det in dets:
                         scenarios.append(FreeMove(joint, kind, payload, noise, det))
         for payload in (False, True):
-            for noise in ("nominal", "harsh"):
+            for noise in NOISES:
                 for stop in ("rigid", "soft"):
                     scenarios.append(Homing(joint, payload, noise, stop))
         # A sensitivity at the noise floor (the original lies there; it should be refused).
@@ -427,11 +434,15 @@ def figures(results: list[tuple], available: Iterable[str]) -> list[tuple[str, f
     avail = set(available)
     out: list[tuple[str, float]] = []
     for det, prefix in (("original", "safety.original."), ("tracking", "safety.")):
-        col = [(s, r) for s, r in results if isinstance(s, Collision) and s.detector == det]
+        runs = [(s, r) for s, r in results if isinstance(s, Collision) and s.detector == det]
+        # A run whose motor lost steps before reaching the obstacle is no collision: it counts in
+        # lost_steps_unobstructed only.
+        col = [(s, r) for s, r in runs if not r["lost_steps"]]
         free = [(s, r) for s, r in results if isinstance(s, FreeMove) and s.detector == det]
-        if det not in avail or not col:
+        if det not in avail or not runs:
             for name in ("collision_detect_rate", "collision_detect_rate.j1", "collision_detect_rate.j2",
-                         "collision_detect_rate.j3", "collision_detect_rate.j4", "collision_latency_ms_median",
+                         "collision_detect_rate.j3", "collision_detect_rate.j4", "collision_detect_rate.rigid",
+                         "collision_detect_rate.soft", "collision_latency_ms_median",
                          "collision_latency_ms_max", "false_stalls", "lost_steps_unobstructed"):
                 out.append((prefix + name, NAN))
             continue
@@ -440,6 +451,10 @@ def figures(results: list[tuple], available: Iterable[str]) -> list[tuple[str, f
             mine = [r for s, r in col if s.joint == joint]
             out.append((prefix + "collision_detect_rate." + joint.lower(),
                         sum(r["detected"] for r in mine) / len(mine) if mine else NAN))
+        for stop in ("rigid", "soft"):  # not names of issue 11: the rate per obstacle kind
+            mine = [r for s, r in col if s.stop == stop]
+            out.append((prefix + "collision_detect_rate." + stop,
+                        sum(r["detected"] for r in mine) / len(mine) if mine else NAN))
         lat = [r["latency_ms"] for _, r in col if r["detected"]]
         out.append((prefix + "collision_latency_ms_median", statistics.median(lat) if lat else NAN))
         out.append((prefix + "collision_latency_ms_max", max(lat) if lat else NAN))
@@ -447,7 +462,7 @@ def figures(results: list[tuple], available: Iterable[str]) -> list[tuple[str, f
                     + sum(r["false_stall"] for _, r in col)))
         # Not a name of issue 11: moves at the shipped limits where the motor itself lost steps.
         out.append((prefix + "lost_steps_unobstructed", sum(r["lost_steps"] for _, r in free)
-                    + sum(r["lost_steps"] for _, r in col)))
+                    + sum(r["lost_steps"] for _, r in runs)))
     hom = [r for s, r in results if isinstance(s, Homing)]
     if hom:
         out.append(("safety.homing_success_rate", sum(r["success"] for r in hom) / len(hom)))

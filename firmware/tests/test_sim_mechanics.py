@@ -33,8 +33,8 @@ def _rpm(m):
 
 def test_end_stops_are_stable_at_any_stiffness_and_damping():
     # Explicit damping used to throw the rotor back at up to 1500 rpm from 0.5 N*m*s/rad on.
-    for stiffness in (20.0, 200.0, 2e4, 2e6):
-        for damping in (0.0, 0.5, 5.0, 500.0):
+    for stiffness in (20.0, 2e6):
+        for damping in (0.0, 0.5, 500.0):
             clock, m = _motor(wall_stiffness=stiffness, wall_damping=damping)
             m.set_end_stops(high_deg=90.0)
             m.set_max_acceleration(2000)
@@ -44,7 +44,7 @@ def test_end_stops_are_stable_at_any_stiffness_and_damping():
             def watch():
                 seen["back"] = min(seen["back"], _rpm(m))
                 seen["deep"] = max(seen["deep"], m.rotor_angle() - 90.0)
-            _run(clock, m, 1.0, each=watch)
+            _run(clock, m, 0.6, each=watch)
             assert seen["back"] > -200.0, (stiffness, damping, seen)
             assert seen["deep"] < max(0.3, 2 * 0.45 / stiffness * 57.3), (stiffness, damping, seen)
             assert math.isfinite(m.rotor_angle()) and m.rotor_angle() > 80.0
@@ -55,7 +55,7 @@ def test_a_link_hits_its_stop_through_the_transmission_without_bouncing_off():
         for kind in ("rigid", "soft"):
             k, c = M.stop_stiffness(joint, kind)
             back = []
-            for damping in (c, 100.0 * c + 1.0, 1e4 * c + 100.0):
+            for damping in (c, 1e4 * c + 100.0):
                 clock, m = _motor(**M.stepper_kwargs(joint))
                 m.set_max_acceleration(2000)
                 m.add_obstacle(60.0, 1, stiffness=k, damping=damping)
@@ -64,13 +64,13 @@ def test_a_link_hits_its_stop_through_the_transmission_without_bouncing_off():
 
                 def watch():
                     seen[0] = min(seen[0], m._V * 60.0 / 51200.0)
-                _run(clock, m, 1.5, each=watch)
+                _run(clock, m, 1.2, 2000, each=watch)
                 back.append(seen[0])
                 # Static penetration: at most the motor's torque over the stop's stiffness.
                 assert m.load_angle() < 60.0 + 0.45 / k * 57.3 + 0.5, (joint, kind, m.load_angle())
             # A springy obstacle may return the link (and the rotor's pole slips shake it), but
             # more damping never throws it back harder.
-            assert back[1] > back[0] - 20.0 and back[2] > back[0] - 20.0, (joint, kind, back)
+            assert back[1] > back[0] - 20.0, (joint, kind, back)
 
 
 def test_backlash_lets_the_rotor_turn_before_the_load_follows():
@@ -129,8 +129,8 @@ def test_as5600_resolution_is_a_twelfth_bit():
 
 def test_default_arm_moves_at_the_shipped_limits_without_losing_steps():
     # The original parameters (20 % current; J3 14 rad/s^2 to 5 rad/s) run on the real arm.
-    for (joint, n, acc, vel), seed in zip((("J1", 35, 2.0, 1.0), ("J3", 24, 14.0, 5.0), ("J4", 12, 30.0, 10.0)) * 2,
-                                          (1, 1, 1, 2, 2, 2)):
+    for (joint, n, acc, vel), seed in zip((("J1", 35, 2.0, 1.0), ("J3", 24, 14.0, 5.0), ("J4", 12, 30.0, 10.0),
+                                           ("J3", 24, 14.0, 5.0)), (1, 1, 1, 2)):
         clock, m = _motor(seed=seed, **M.stepper_kwargs(joint))
         m.set_max_acceleration(math.degrees(acc * n) * 200 / 360)
         m.set_max_deceleration(math.degrees(acc * n) * 200 / 360)

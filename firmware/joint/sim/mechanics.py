@@ -28,17 +28,19 @@ MOTOR = {"holding_torque": 0.45, "rotor_inertia": 6.8e-6, "coulomb": 0.005, "dam
 # kg*m^2 (J2: the moving mass, kg); payload lever arm, m (inertia += payload * lever^2); the
 # transmission's stiffness (N*m/rad; J2: N/m axial) and damping ratio; backlash in motor degrees;
 # friction at the joint (N*m; J2: screw thread friction coefficient); the end stop's contact
-# stiffness (N*m/rad; J2: N/m) and damping ratio; a soft obstacle's stiffness (same units).
+# stiffness (N*m/rad; J2: N/m) and damping ratio; a soft obstacle's stiffness (same units): the
+# softest body region of ISO/TS 15066 (abdomen, 10 N/mm) met at the gripper (J1 0.614 m, J3
+# 0.285 m from the axis; J4 at a 0.04 m jaw).
 ARM = {
     "J1": {"reduction": 35.0, "inertia": 0.19, "lever": 0.614, "stiffness": 1500.0, "zeta": 0.1,
-           "backlash_deg": 0.5, "friction": 0.05, "stop": 5000.0, "stop_zeta": 0.2, "soft": 100.0},
+           "backlash_deg": 0.5, "friction": 0.05, "stop": 5000.0, "stop_zeta": 0.2, "soft": 1e4 * 0.614 ** 2},
     "J2": {"reduction": 2.0 * math.pi / 0.004, "mass": 1.5, "stiffness": 3.7e6, "zeta": 0.1,
            "backlash_deg": 4.5, "screw_mu": 0.1, "screw_d": 0.007, "extra_inertia": 1.3e-6,
-           "stop": 1e6, "stop_zeta": 0.2, "soft": 2e4},
+           "stop": 1e6, "stop_zeta": 0.2, "soft": 1e4},
     "J3": {"reduction": 24.0, "inertia": 0.030, "lever": 0.285, "stiffness": 600.0, "zeta": 0.1,
-           "backlash_deg": 0.5, "friction": 0.03, "stop": 3000.0, "stop_zeta": 0.2, "soft": 50.0},
+           "backlash_deg": 0.5, "friction": 0.03, "stop": 3000.0, "stop_zeta": 0.2, "soft": 1e4 * 0.285 ** 2},
     "J4": {"reduction": 12.0, "inertia": 3.0e-4, "lever": 0.02, "stiffness": 150.0, "zeta": 0.1,
-           "backlash_deg": 1.0, "friction": 0.01, "stop": 1000.0, "stop_zeta": 0.2, "soft": 5.0},
+           "backlash_deg": 1.0, "friction": 0.01, "stop": 1000.0, "stop_zeta": 0.2, "soft": 1e4 * 0.04 ** 2},
 }
 
 # Encoder error figures. TLE5012B: overall angle error 1.0 deg at 25 C, 1.9 deg over -40..125 C
@@ -111,7 +113,7 @@ def stepper_kwargs(joint, payload_kg=0.0, noise="nominal", encoder="tle5012b"):
 
 def stop_stiffness(joint, kind="rigid", payload_kg=0.0):
     """(stiffness N*m/rad, damping N*m*s/rad) on the motor side of an obstacle: "rigid" (the end
-    stop block's contact) or "soft" (a padded obstacle or a hand), damping ratio 0.2."""
+    stop block's contact) or "soft" (a person: ISO/TS 15066's softest region), damping ratio 0.2."""
     jl, _, _, _, _, ks, cs, soft = _reflect(joint, payload_kg)
     if kind == "rigid":
         return ks, cs
