@@ -4,7 +4,7 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test bench bench-safety chip-costs clean
+.PHONY: demo test bench bench-safety derive-safety chip-costs clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -23,6 +23,11 @@ bench: $(STAMP)
 
 bench-safety: $(STAMP)
 	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/python bench/safety.py
+
+# Re-derive the joints' tracking stall-detector constants and quick-stop deceleration from the
+# simulated arm (bench/derive_safety.py) and store them in firmware/joint/configs/J*.json.
+derive-safety: $(STAMP)
+	$(BIN)/python bench/derive_safety.py --write
 
 # Refresh the simulator's chip cost table from the emulated chip (needs make bench-chip).
 chip-costs: $(STAMP)

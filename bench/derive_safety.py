@@ -1,13 +1,14 @@
 """Derive each joint's tracking stall-detector constants and its quick-stop deceleration from the
 simulated arm's mechanics (firmware/joint/sim/mechanics.py), so they come from a procedure, not a guess.
 
-Stall detector (tracking.py: stalled when lag > base + min(|field speed| * tau, cap)): run the real firmware
-through unobstructed motion at the joint's configured acceleration -- velocity steps to 10 rpm ..
-top speed and back through reversals, position moves at top speed, a streamed trajectory -- with
-nominal and harsh encoder noise, and record every sample's lag and field speed. tau is the value
-(0..20 ms) that gives the lowest threshold at 10 and 30 rpm once base and cap cover MARGIN x every lag seen
-held over CONFIRM samples in a row. Phases in which the motor really lost position are reported and
-left out (the detector is right to stop those).
+Stall detector (tracking.py: stalled when lag > base + min(|field speed| * tau, cap)): run the real
+firmware through unobstructed motion at the joint's configured acceleration -- velocity steps to 10
+rpm .. top speed and back through reversals, position moves at top speed, a streamed trajectory --
+with nominal and harsh TLE5012B noise and the Pico backend's AS5600 (the shipped configs drive a
+Pico), and record every sample's lag and field speed. tau is the value (0..20 ms) that gives the
+lowest threshold at 10 and 30 rpm once base and cap cover MARGIN x every lag seen held over CONFIRM
+samples in a row. Phases in which the motor really lost position are reported and left out (the
+detector is right to stop those).
 
 Quick stop: the largest deceleration (full steps/s^2, at most the driver's 11636) from which the
 joint stops at top speed without losing position (no pole slip in the simulator),
@@ -45,7 +46,10 @@ DRIVER_MAX_DECEL = 11636.0
 
 
 def _rig(joint, noise, seed):
-    rig = SimRig(joint, seed=seed, **mechanics.stepper_kwargs(joint, noise=noise))
+    """noise: "nominal" | "harsh" (TLE5012B) | "as5600" (the Pico backend's 12-bit encoder)."""
+    encoder = "as5600" if noise == "as5600" else "tle5012b"
+    kwargs = mechanics.stepper_kwargs(joint, noise="nominal" if noise == "as5600" else noise, encoder=encoder)
+    rig = SimRig(joint, seed=seed, **kwargs)
     top, accel, current, sensitivity = JOINTS[joint]
     rig.enable(current=current, sensitivity=sensitivity, accel_deg=accel, vel_deg=top * 6.0)
     core = rig.joint.core
@@ -148,7 +152,7 @@ def main(argv):
     results = {}
     for joint in JOINTS:
         samples = []
-        for noise in ("nominal", "harsh"):
+        for noise in ("nominal", "harsh", "as5600"):
             for seed in (1, 2):
                 samples += free_motion(joint, noise, seed)
         base, tau, cap = fit(samples)
