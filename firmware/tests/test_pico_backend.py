@@ -587,11 +587,11 @@ def test_step_generator_counts_only_acknowledged_pulses():
     assert gen.position == 0  # still in the PIO
     sm.finish()
     gen.poll()
-    assert gen.position == 100 and gen.idle()
+    assert gen.position == 100 and gen.idle() and gen.field == 100
     assert gen.issue(100.7, 0.001) == 0  # only a fraction is owed
     assert gen.issue(40.0, 0.001) == -60
     gen.shift(-500)
-    assert gen.commanded == -460 and gen.position == -400
+    assert gen.commanded == -460 and gen.position == -400 and gen.field == 100  # never relabelled
     for _ in range(10):  # the PIO stalls: at most MAX_IN_FLIGHT bursts are queued
         gen.issue(gen.commanded + 10, 0.001)
     assert len(sm.tx) == sg.MAX_IN_FLIGHT

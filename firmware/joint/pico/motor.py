@@ -350,6 +350,10 @@ class PicoStepper(MotorHAL):
     def pid_error(self):
         return float(self._error)
 
+    def field_position(self):
+        """Usteps of pulses that reached the driver since construction, wrapping at 2**30."""
+        return self._steps.field
+
     def position_reached(self):
         return not self._stopping and self._ramp.position_reached() and self._steps.idle()
 

@@ -137,6 +137,7 @@ class StepGenerator:
         self.position = 0
         self.commanded = 0
         self.in_flight = 0
+        self.field = 0  # usteps of acknowledged pulses, never relabelled, wrapping at 2**30
 
     def max_usteps_per_s(self):
         """Highest average speed: BURST_FILL of the time at the maximum pulse rate."""
@@ -149,7 +150,9 @@ class StepGenerator:
         """Account for bursts the PIO has finished."""
         sm = self._sm
         while sm.rx_fifo():
-            self.position += burst_pulses(sm.get()) * self.upp
+            moved = burst_pulses(sm.get()) * self.upp
+            self.position += moved
+            self.field = (self.field + moved) & 0x3FFFFFFF
             self.in_flight -= 1
 
     def issue(self, target, dt):
