@@ -27,6 +27,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path[:0] = [os.path.join(HERE, "..", "firmware"), os.path.join(HERE, "..", "firmware", "tests")]
 
 from harness import SimRig  # noqa: E402
+from joint.fixed import STEPS_Q, to_q  # noqa: E402
 from joint.sim import mechanics  # noqa: E402
 
 # The arm's configured motion (host/bioscara/data/default.toml) on the motor side.
@@ -132,7 +133,7 @@ def fit(samples):
 def keeps_position(joint, decel):
     top, _, _, _ = JOINTS[joint]
     rig = _rig(joint, "nominal", 1)
-    rig.joint.core.cfg.stop_deceleration = decel
+    rig.joint.core.stop_deceleration = to_q(decel, STEPS_Q)  # the core's unit: full steps/s^2 Q4
     rig.command("WATCHDOG", 20)
     rig.command("SETRPM", top)
     rig.poll(1.0 + top * 6.0 / JOINTS[joint][1], period=0.01)

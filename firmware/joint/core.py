@@ -14,6 +14,7 @@ No hardware module is imported here: the HAL, clock, logger and IRQ masking are 
 
 import struct
 
+from .fixed import STEPS_Q, to_q
 from .handlers import Handlers
 from .irq import COUNTER_MASK, QUEUE_SLOTS, SLOT, IrqPath
 from .loop import MainLoop
@@ -55,8 +56,8 @@ class JointController(IrqPath, MainLoop, Handlers, Tasks, Supervisor):
         # Setpoints and modes (main loop).
         self.drive_current = 0
         self.hold_current = 0
-        self.qd_set = 0.0
-        self.q_set = 0.0
+        self.qd_set = 0  # rpm Q16
+        self.q_set = 0  # degrees Q12
         self.positioning = False
         self.closed_loop = False
         self.inverted = False
@@ -72,13 +73,14 @@ class JointController(IrqPath, MainLoop, Handlers, Tasks, Supervisor):
         self._homing_floor_q = int(cfg.homing.floor_per_rpm * 1024 + 0.5)
         # Deadman: 0 = the original's (velocity only, cfg.deadman_ms); WATCHDOG sets every mode.
         self.watchdog_ms = 0
-        # usteps from the encoder's zero (set where the rotor rested after homing) to the end
+        # Degrees Q12 from the encoder's zero (set where the rotor rested after homing) to the end
         # stop's deepest point: the host's angle is the encoder's plus this.
         self.zero_offset = 0
         self._safe_pending = False
-        # The host's acceleration limits (full steps/s^2), restored after a deadman stop.
-        self.max_acceleration = cfg.boot.max_acceleration
-        self.max_deceleration = cfg.boot.max_acceleration
+        # The host's acceleration limits, restored after a deadman stop, and the deadman's
+        # quick-stop deceleration: full steps/s^2 Q4, converted here, once.
+        self.max_acceleration = self.max_deceleration = to_q(cfg.boot.max_acceleration, STEPS_Q)
+        self.stop_deceleration = to_q(cfg.stop_deceleration, STEPS_Q)
         self.trace = None  # main loop: called with the detector after every stall-detection sample
         # Reply caches: bytes of every readable register, packed ahead of the read.
         self._cache = [None] * 256
@@ -87,11 +89,12 @@ class JointController(IrqPath, MainLoop, Handlers, Tasks, Supervisor):
             if reg is not None and reg.readable:
                 self._cache[addr] = bytearray(reg.rsize)
         self._cache[PING][0] = ACK
+        self._cache_values = [0, 0, 0, 0]  # what the float caches hold (HAL units)
+        self._f32_scratch = bytearray(4)
         struct.pack_into("<BBBBBI", self._cache[IDENTITY], 0, PROTOCOL_VERSION, FIRMWARE_VERSION[0],
                          FIRMWARE_VERSION[1], FIRMWARE_VERSION[2], cfg.joint_id, SPEC_HASH)
         # IRQ-side state: the reply the next read gets, the command queue, counters.
-        self._reply_reg = BY_ADDR[PING]
-        self._reply_err = 0
+        self._init_irq_tables()
         self._queue = bytearray(QUEUE_SLOTS * SLOT)
         self._q_in = 0  # written by the IRQ path only
         self._q_out = 0  # written by the main loop only

@@ -15,7 +15,7 @@ tracking detector (tracking.py, the encoder no longer following the field);
 `set_stall_detector()` switches at run time (bench, tests).
 """
 
-from .hal import USTEPS_PER_DEG
+from .fixed import muldiv
 from .protocol import (
     FLAG_BUSY, FLAG_NOTENABLED, FLAG_NOTHOMED, FLAG_STALL, HOME, MOVEANGLE, MOVESTEPS, MOVETOANGLE,
     REJECT_HOMING_SENSITIVITY, REJECT_NONE, REJECT_NOT_ENABLED, REJECT_STALLED, SETRPM,
@@ -42,11 +42,17 @@ class Supervisor:
         self.track.reset()
 
     def _encoder_usteps(self):
-        return int(self.hal.angle_moved() * USTEPS_PER_DEG)
+        """The encoder angle in usteps (int): degrees Q12 x 51200 / 360 / 4096 = 5 / 144, exact on
+        the Pico, where the angle is AS5600 counts x 360."""
+        a = self.hal.angle_moved()
+        if a >= 0:
+            return muldiv(a, 5, 144)
+        return -muldiv(-a, 5, 144)
 
     def _host_angle(self):
-        """The angle the host sees (ANGLEMOVED, MOVETOANGLE): 0 at the end stop homing found."""
-        return self.hal.angle_moved() + self.zero_offset / USTEPS_PER_DEG
+        """The angle the host sees (ANGLEMOVED, MOVETOANGLE), degrees Q12: 0 at the end stop
+        homing found."""
+        return self.hal.angle_moved() + self.zero_offset
 
     # ---- IRQ path: no allocation ----
 
@@ -108,8 +114,9 @@ class Supervisor:
         return self.hal.driver_rpm() != 0
 
     def _check_deadman(self):
-        if self._safe_pending:
+        if self._safe_pending:  # this deadman's quick stop is braking: decided once, not per tick
             self._safe_action()
+            return
         if not self._motion_active():
             return
         timeout = self.watchdog_ms or self.cfg.deadman_ms
@@ -142,13 +149,13 @@ class Supervisor:
     def _quick_stop(self):
         """Brake at stop_deceleration; the host's limits apply again once the motor stands."""
         hal = self.hal
-        decel = self.cfg.stop_deceleration
+        decel = self.stop_deceleration
         hal.set_max_acceleration(decel)
         hal.set_max_deceleration(decel)
         hal.stop(False)
         hal.set_max_acceleration(self.max_acceleration)
         hal.set_max_deceleration(self.max_deceleration)
-        self.qd_set = 0.0
+        self.qd_set = 0
         self.positioning = False
 
     def _safe_action(self):

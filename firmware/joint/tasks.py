@@ -4,9 +4,7 @@ A task holds BUSY while it runs; the main loop steps it when its wait is over (e
 how many milliseconds to wait) or a STOP cancelled it.
 """
 
-import struct
-
-from .hal import USTEPS_PER_DEG
+from .fixed import ANGLE_Q, RPM_Q, STEPS_Q, muldiv, to_q
 from .homing import HOMED, OUTCOMES, RUNNING
 from .protocol import FLAG_BUSY, FLAG_NOTHOMED, FLAG_STALL, FLAGS_AT_BOOT, HOMINGTRAVEL
 from .tracking import wrapped_diff
@@ -24,6 +22,13 @@ _SETTLE_MAX_MS = const(3000)
 _MOVE_TIMEOUT_MS = const(10000)
 _ORIENTATION_MAX_ROUNDS = const(10)
 _WIND_DOWN_STEPS = const(8)
+
+
+def _usteps_to_angle(usteps):
+    """usteps as motor degrees Q12 (x 360 * 4096 / 51200 = 144 / 5)."""
+    if usteps >= 0:
+        return muldiv(usteps, 144, 5)
+    return -muldiv(-usteps, 144, 5)
 
 
 class Tasks:
@@ -76,11 +81,12 @@ class Tasks:
         hal.begin()
         hal.enable_closed_loop()
         self.closed_loop = True
-        hal.set_max_acceleration(boot.max_acceleration)
-        hal.set_max_deceleration(boot.max_acceleration)
-        hal.set_max_velocity(boot.max_velocity)
-        hal.set_control_threshold(boot.control_threshold)
-        yield from self._orientation(boot.orientation_check)
+        accel = to_q(boot.max_acceleration, STEPS_Q)
+        hal.set_max_acceleration(accel)
+        hal.set_max_deceleration(accel)
+        hal.set_max_velocity(to_q(boot.max_velocity, STEPS_Q))
+        hal.set_control_threshold(to_q(boot.control_threshold, 0))
+        yield from self._orientation(to_q(boot.orientation_check, ANGLE_Q))
         hal.stop(True)
         hal.set_current(0)
         hal.set_hold_current(0)
@@ -100,7 +106,8 @@ class Tasks:
         return True
 
     def _orientation(self, degrees):
-        """The stepper library's checkOrientation: +/- moves until two agree on the direction.
+        """The stepper library's checkOrientation: +/- moves of `degrees` (Q12) until two agree.
+
 
         Unlike the library it gives up on a STOP or a move that never arrives (the library
         waited forever), keeping the driver direction it had.
@@ -145,7 +152,7 @@ class Tasks:
         The motor holds at the homing current throughout: a back-drivable load must not fall."""
         hal = self.hal
         monitor = self.homing
-        self.qd_set = 0.0
+        self.qd_set = 0
         self.positioning = False
         hal.set_current(current)
         hal.set_hold_current(current)
@@ -153,7 +160,7 @@ class Tasks:
         yield _HOMING_SETTLE_MS
         outcome = RUNNING
         if not self._cancelled():
-            hal.set_rpm(speed if direction else -speed)
+            hal.set_rpm((speed if direction else -speed) << RPM_Q)
             monitor.start(1 if direction else -1, speed, sensitivity, hal.field_position(),
                           self._encoder_usteps())
             clock = self.clock
@@ -177,12 +184,10 @@ class Tasks:
             # The rotor rebounds off the stop (far, on a stiff stop behind backlash): the zero is
             # the deepest point the encoder reached while pushing, not where the rotor came to rest.
             rest = self._encoder_usteps()
-            travel = wrapped_diff(monitor.deepest, monitor.start_encoder) / USTEPS_PER_DEG
-            state = self._irq_off()
-            struct.pack_into("<f", self._cache[HOMINGTRAVEL], 0, travel)
-            self._irq_on(state)
+            travel = _usteps_to_angle(wrapped_diff(monitor.deepest, monitor.start_encoder))
+            self._store_f32(self._cache[HOMINGTRAVEL], travel, ANGLE_Q)
             hal.set_home()
-            self.zero_offset = wrapped_diff(rest, monitor.deepest)
+            self.zero_offset = _usteps_to_angle(wrapped_diff(rest, monitor.deepest))
             self._clear_flags(FLAG_NOTHOMED | FLAG_STALL)
             self.log.info("homed")
         else:
