@@ -8,7 +8,7 @@ NPM := $(shell command -v npm 2>/dev/null)
 CHIP_STAMP := chip/node_modules/.installed
 CHIP := $(if $(NPM),$(CHIP_STAMP))
 
-.PHONY: demo test bench bench-chip clean browser panel-screenshot
+.PHONY: demo test bench bench-safety derive-safety chip-costs bench-chip clean browser panel-screenshot
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -28,6 +28,18 @@ test: $(STAMP) browser $(CHIP)
 
 bench: $(STAMP)
 	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/python bench/run.py
+
+bench-safety: $(STAMP)
+	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/python bench/safety.py
+
+# Re-derive the joints' tracking stall-detector constants and quick-stop deceleration from the
+# simulated arm (bench/derive_safety.py) and store them in firmware/joint/configs/J*.json.
+derive-safety: $(STAMP)
+	$(BIN)/python bench/derive_safety.py --write
+
+# Refresh the simulator's chip cost table from the emulated chip (needs make bench-chip).
+chip-costs: $(STAMP)
+	$(MAKE) --no-print-directory bench-chip | tee /dev/stderr | $(BIN)/python bench/chip_costs.py
 
 # The panel's web test drives Debian's chromium; install it where this machine lets us (root, apt).
 browser:

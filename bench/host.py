@@ -56,7 +56,7 @@ def control_cycle(cycles: int = 2000, protocol: str = "legacy") -> dict[str, flo
     (the joints' main loop runs, as at any cycle rate up to 1 kHz): wire bits and host CPU."""
     arm, bus = homed_arm(protocol=protocol)
     meter = SimMeter(bus)
-    bits0 = bus.sim.bits
+    bits0, stretch0 = bus.sim.bits, bus.sim.stretch_us
     t0 = time.process_time()
     for _ in range(cycles):
         arm.cycle()
@@ -65,8 +65,9 @@ def control_cycle(cycles: int = 2000, protocol: str = "legacy") -> dict[str, flo
     host = (total - meter.seconds) / cycles
     bits = (bus.sim.bits - bits0) / cycles
     wire = bits / bus.speed_hz
+    stretch = (bus.sim.stretch_us - stretch0) / cycles * 1e-6
     return {"host_us": host * 1e6, "sim_us": meter.seconds / cycles * 1e6, "bits": bits,
-            "wire_us": wire * 1e6, "fraction": host / wire}
+            "wire_us": wire * 1e6, "fraction": host / wire, "bus_us": (wire + stretch) * 1e6}
 
 
 def communicator_virtual(rate: float, seconds: float = 5.0) -> dict[str, float]:

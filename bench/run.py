@@ -51,6 +51,7 @@ def main() -> None:
         what = "2 reads + 1 position write per joint" if protocol == "legacy" else "1 combined transaction per joint"
         print(f"host, 4-joint control cycle over {protocol} ({what}) on the simulated bus")
         print(f"  wire: {c['bits']:.0f} bit times = {c['wire_us']:.0f} us at 400 kHz")
+        print(f"  bus: {c['bus_us']:.0f} us per cycle with the joint chip's clock stretching (sim/chip_costs.json)")
         print(f"  host CPU: {c['host_us']:.0f} us per cycle = {c['fraction']:.2f} x the wire time "
               f"(the simulator itself: {c['sim_us']:.0f} us, excluded)")
     for protocol, c in cycles.items():

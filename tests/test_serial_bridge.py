@@ -80,7 +80,7 @@ def test_the_joint_api_round_trip_on_four_joints(config: ArmConfig, bus: SerialB
         joint.set_max_acceleration(joint_config(config, joint).max_acceleration)
         joint.start_homing(homing.direction * homing.speed, homing.threshold, homing.current)
     for joint in joints:
-        joint.wait_while_busy(0.05, timeout=10.0)
+        joint.wait_while_busy(0.05, timeout=30.0)  # real time, on a loaded machine too
         joint.post_homing()
         assert joint.is_homed()
     targets = {}

@@ -11,6 +11,8 @@ CONFIG_FILE = "joint_config.json"
 JOINTS = ("J1", "J2", "J3", "J4")
 ADDRESSES = {"J1": 0x11, "J2": 0x12, "J3": 0x13, "J4": 0x14}
 BACKENDS = ("pico", "sim")
+SAFE_ACTIONS = ("hold", "freewheel")
+DETECTORS = ("original", "tracking")
 
 _INT = 0
 _NUM = 1
@@ -22,7 +24,13 @@ SCHEMA = (
     ("", (
         ("joint", _STR, None, JOINTS, None),
         ("address", _INT, None, 0x08, 0x77),
-        ("deadman_ms", _INT, 50, 10, 1000),
+        ("deadman_ms", _INT, 50, 10, 1000),  # the original's velocity-only deadman (boot)
+        # After a deadman stop: "hold" (stay energized at the hold current, as the original did)
+        # or "freewheel" (currents 0, coils open).
+        ("safe_action", _STR, "hold", SAFE_ACTIONS, None),
+        # Deadman stops decelerate at this rate (full steps/s^2): the fastest the motor can brake
+        # the joint's inertia without losing position (tools/derive_safety_constants.py).
+        ("stop_deceleration", _NUM, 11636.0, 1.0, 11636.0),
     )),
     ("i2c", (
         ("bus", _INT, 0, 0, 1),
@@ -46,6 +54,27 @@ SCHEMA = (
         ("window_high", _NUM, 450.0, 0.0, 100000.0),
         ("window_offset", _NUM, 90.0, 0.0, 100000.0),  # usteps
         ("slope", _NUM, 0.0, -100000.0, 100000.0),  # usteps per rad/s
+        # "original": the filtered-PID-error detector above; "tracking": tracking.py, the encoder
+        # no longer following the driver's field. Constants from tools/derive_safety_constants.py.
+        ("detector", _STR, "original", DETECTORS, None),
+        ("track_base", _INT, 320, 16, 100000),  # usteps of lag beyond any free-running lag
+        ("track_tau_ms", _INT, 10, 0, 1000),  # plus this many ms of field travel at the speed,
+        ("track_cap", _INT, 100000, 0, 1000000),  # at most this many usteps
+        ("track_window", _INT, 20, 1, 64),  # samples the lag is measured over
+        ("track_confirm", _INT, 2, 1, 64),  # samples in a row above the threshold
+        ("track_sample_ms", _INT, 5, 1, 100),
+    )),
+    ("homing", (
+        # HOME ends only when the encoder lags the field by this much for `confirm` samples
+        # (sampled every stall.track_sample_ms) and |PID error| exceeded the sensitivity meanwhile.
+        ("evidence_usteps", _INT, 512, 64, 100000),
+        ("confirm", _INT, 3, 1, 64),
+        # A homing that travels farther (motor degrees, from the joint's range) or runs longer than
+        # this travel at the homing speed (x 1.5, + 3 s) ends NOTHOMED.
+        ("max_travel_deg", _NUM, 36000.0, 1.0, 1e6),
+        # The PID-error noise floor while moving: control threshold + this x speed (rpm); a
+        # sensitivity at or below it is refused. 0.5534 = usteps per ISR tick per rpm (1541.85 Hz).
+        ("floor_per_rpm", _NUM, 0.5534, 0.0, 100.0),
     )),
 )
 
@@ -148,6 +177,8 @@ def parse(data, source=CONFIG_FILE):
     if stall.window_low > stall.window_high:
         cfg.errors.append("%s: stall.window_low (%s) must not exceed stall.window_high (%s)"
                           % (source, stall.window_low, stall.window_high))
+    if stall.track_confirm > stall.track_window:
+        cfg.errors.append("%s: stall.track_confirm must not exceed stall.track_window" % source)
     if stall.sample_time >= stall.time_constant:
         cfg.errors.append("%s: stall.sample_time must be below stall.time_constant" % source)
     _parse_motor(cfg, data.get("motor", {"backend": "sim"}))

@@ -14,6 +14,7 @@ No hardware module is imported here: the HAL, clock, logger and IRQ masking are 
 
 import struct
 
+from .fixed import STEPS_Q, to_q
 from .handlers import Handlers
 from .irq import COUNTER_MASK, QUEUE_SLOTS, SLOT, IrqPath
 from .loop import MainLoop
@@ -21,10 +22,12 @@ from .protocol import (
     ACK, BY_ADDR, CHECKORIENTATION, CLEARSTALL, DISABLECLOSEDLOOP, DISABLESTALLGUARD,
     ENABLECLOSEDLOOP, ENABLESTALLGUARD, FLAG_BUSY, FLAGS_AT_BOOT, HOME, IDENTITY, MOVEANGLE,
     MOVESTEPS, MOVETOANGLE, PING, PROTOCOL, PROTOCOL_VERSION, SETBRAKEMODE, SETCURRENT, SETHOLDCURRENT,
-    SETMAXACCELERATION, SETMAXDECELERATION, SETMAXVELOCITY, SETRPM, SETUP, SPEC_HASH,
+    SETMAXACCELERATION, SETMAXDECELERATION, SETMAXVELOCITY, SETRPM, SETUP, SPEC_HASH, WATCHDOG,
 )
+from .homing import HomingMonitor
 from .stall import StallDetector
-from .supervise import Supervisor
+from .supervise import DETECTOR_NAMES, Supervisor
+from .tracking import TrackingDetector
 from .tasks import Tasks
 from .version import FIRMWARE_VERSION
 
@@ -53,13 +56,31 @@ class JointController(IrqPath, MainLoop, Handlers, Tasks, Supervisor):
         # Setpoints and modes (main loop).
         self.drive_current = 0
         self.hold_current = 0
-        self.qd_set = 0.0
-        self.q_set = 0.0
+        self.qd_set = 0  # rpm Q16
+        self.q_set = 0  # degrees Q12
         self.positioning = False
         self.closed_loop = False
         self.inverted = False
         self.stallguard = False
         self.stall = StallDetector(cfg.stall)
+        st = cfg.stall
+        self.track = TrackingDetector(st.track_base, st.track_tau_ms, st.track_window, st.track_confirm,
+                                      st.track_sample_ms, st.track_cap)
+        self.detector = DETECTOR_NAMES.index(st.detector) if st.detector in DETECTOR_NAMES else 0
+        self.homing = HomingMonitor(cfg.homing, st)
+        # HOME sensitivity noise floor, integer for the IRQ: threshold + speed * per_rpm (Q10).
+        self._homing_floor = int(cfg.boot.control_threshold)
+        self._homing_floor_q = int(cfg.homing.floor_per_rpm * 1024 + 0.5)
+        # Deadman: 0 = the original's (velocity only, cfg.deadman_ms); WATCHDOG sets every mode.
+        self.watchdog_ms = 0
+        # Degrees Q12 from the encoder's zero (set where the rotor rested after homing) to the end
+        # stop's deepest point: the host's angle is the encoder's plus this.
+        self.zero_offset = 0
+        self._safe_pending = False
+        # The host's acceleration limits, restored after a deadman stop, and the deadman's
+        # quick-stop deceleration: full steps/s^2 Q4, converted here, once.
+        self.max_acceleration = self.max_deceleration = to_q(cfg.boot.max_acceleration, STEPS_Q)
+        self.stop_deceleration = to_q(cfg.stop_deceleration, STEPS_Q)
         self.trace = None  # main loop: called with the detector after every stall-detection sample
         # Reply caches: bytes of every readable register, packed ahead of the read.
         self._cache = [None] * 256
@@ -82,6 +103,8 @@ class JointController(IrqPath, MainLoop, Handlers, Tasks, Supervisor):
         self._blocking_out = 0  # ... and taken from the queue (main loop)
         self._blocking_stops = 0  # stop epoch when the latest blocking command was accepted
         self.transactions = 0
+        self._ticks_us = clock.ticks_us  # bound once: the IRQ path calls it
+        self.host_us = clock.ticks_us()
         # Epochs (8 bits). `stops`: STOP frames (IRQ); a task or queued blocking command from an
         # older epoch is cancelled. `halts`: whatever stopped the motor (STOP in the IRQ, stall or
         # deadman in the main loop); queued motion from an older epoch is not applied.
@@ -96,9 +119,10 @@ class JointController(IrqPath, MainLoop, Handlers, Tasks, Supervisor):
         # Main-loop bookkeeping.
         now = clock.ticks_ms()
         self._seen_transactions = 0
-        self._last_host_ms = now
+        self._last_host_us = self.host_us
         self._next_stall_ms = now
         self._stall_period_ms = int(cfg.stall.sample_time * 1000 + 0.5)
+        self._next_track_ms = now
         self._task = None
         self.task_name = None
         self._task_stops = 0  # the stop epoch the running task belongs to
@@ -113,7 +137,7 @@ class JointController(IrqPath, MainLoop, Handlers, Tasks, Supervisor):
             CLEARSTALL: self._clear_stall, SETBRAKEMODE: self._set_brake_mode,
             ENABLECLOSEDLOOP: self._enable_closed_loop, DISABLECLOSEDLOOP: self._disable_closed_loop,
             CHECKORIENTATION: self._check_orientation, HOME: self._home,
-            PROTOCOL: self._select_protocol,
+            PROTOCOL: self._select_protocol, WATCHDOG: self._set_watchdog,
         }
         self.protocol_request = 0  # a PROTOCOL write (main loop); the protocol switch (v2.py) acts on it
         if self.disabled:

@@ -5,7 +5,10 @@ Float32 payloads are decoded to the HAL's fixed-point units on their bits (`fixe
 streaming SETRPM or MOVETOANGLE at its cycle rate creates no float on the board.
 """
 
+import struct
+
 from .fixed import ANGLE_Q, RPM_Q, STEPS_Q, f32_to_q, i32, muldiv
+from .protocol import WATCHDOG
 
 
 def _full_steps(q, off):
@@ -26,6 +29,8 @@ class Handlers:
         self.stallguard = False
         self.qd_set = 0
         self.positioning = False
+        self._safe_pending = False
+        self.track.reset()
 
     def _set_rpm(self, q, off):
         rpm = f32_to_q(q, off, RPM_Q)
@@ -47,7 +52,7 @@ class Handlers:
     def _move_to_angle(self, q, off):
         self.q_set = f32_to_q(q, off, ANGLE_Q)
         if self._may_move():
-            self.hal.move_to_angle(self.q_set)
+            self.hal.move_to_angle(self.q_set - self.zero_offset)
             self._positioning_started()
 
     def _positioning_started(self):
@@ -64,11 +69,13 @@ class Handlers:
 
     def _set_max_acceleration(self, q, off):
         value = _full_steps(q, off)
+        self.max_acceleration = self.max_deceleration = value
         self.hal.set_max_acceleration(value)
         self.hal.set_max_deceleration(value)
 
     def _set_max_deceleration(self, q, off):
-        self.hal.set_max_deceleration(_full_steps(q, off))
+        self.max_deceleration = _full_steps(q, off)
+        self.hal.set_max_deceleration(self.max_deceleration)
 
     def _set_max_velocity(self, q, off):
         self.hal.set_max_velocity(_full_steps(q, off))
@@ -76,6 +83,7 @@ class Handlers:
     def _enable_stallguard(self, q, off):
         self.stall.sensitivity = q[off]
         self.stall.reset()
+        self.track.reset()
         self.stallguard = True
 
     def _disable_stallguard(self, q, off):
@@ -83,6 +91,7 @@ class Handlers:
 
     def _clear_stall(self, q, off):
         self.stall.reset()
+        self.track.reset()
 
     def _set_brake_mode(self, q, off):
         self.hal.set_brake_mode(q[off])
@@ -99,6 +108,10 @@ class Handlers:
         # The sign would only swap what counts as inverted: a negative angle would flip a
         # correctly wired motor into closed-loop runaway.
         self._start_task("CHECKORIENTATION", self._orientation(abs(f32_to_q(q, off, ANGLE_Q))))
+
+    def _set_watchdog(self, q, off):
+        self.watchdog_ms = q[off] | (q[off + 1] << 8)
+        struct.pack_into("<H", self._cache[WATCHDOG], 0, self.watchdog_ms)
 
     def _home(self, q, off):
         self._start_task("HOME", self._homing(q[off], q[off + 1], q[off + 2], q[off + 3]))

@@ -65,6 +65,7 @@ class I2CTargetAdapter:
         # Bound methods made once: looking them up in the IRQ would walk the core's mixins.
         self._on_frame = core.on_frame
         self._reply_into = core.reply_into
+        self._ticks_us = core._ticks_us
         self._handler = self._irq
         self._events = target.irq(self._handler, trigger=IRQ_ALL, hard=True)  # the irq object
 
@@ -90,7 +91,8 @@ class I2CTargetAdapter:
             self._on_frame(self._frame, self._frame_len)
             self._frame_len = 0
             core = self._core
-            core.transactions = (core.transactions + 1) & COUNTER_MASK  # host_seen(), inlined
+            core.host_us = self._ticks_us()  # host_seen(), inlined: the deadman counts from here
+            core.transactions = (core.transactions + 1) & COUNTER_MASK
         if events & IRQ_ADDR_MATCH_READ:
             self._reply_len = self._reply_into(self._reply)
             self._reply_pos = 0
@@ -107,4 +109,5 @@ class I2CTargetAdapter:
                 target.write(self._pad)
         if events & IRQ_END_READ:
             core = self._core
+            core.host_us = self._ticks_us()
             core.transactions = (core.transactions + 1) & COUNTER_MASK

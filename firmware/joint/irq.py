@@ -58,6 +58,7 @@ class IrqPath:
 
     def host_seen(self):
         """A transaction addressed to this joint ended (feeds the deadman)."""
+        self.host_us = self._ticks_us()  # when: the deadman counts from here, not from the loop
         self.transactions = (self.transactions + 1) & COUNTER_MASK
 
     @micropython.native
@@ -86,6 +87,8 @@ class IrqPath:
             elif (addr != HOMEOFFSET and addr != STOP
                   and ((self._q_in - self._q_out) & COUNTER_MASK) >= QUEUE_SLOTS):
                 reason = REJECT_QUEUE_FULL
+            else:
+                reason = self._refusal(addr, frame)  # supervise.py: motion in this state, HOME limits
         if reason != REJECT_NONE:
             self._reject(addr, reason)
             return

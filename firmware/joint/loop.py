@@ -35,7 +35,7 @@ class MainLoop:
         now = self.clock.ticks_ms()
         if self.transactions != self._seen_transactions:
             self._seen_transactions = self.transactions
-            self._last_host_ms = now
+            self._last_host_us = self.host_us
         if not self.disabled:
             try:
                 self._service_motor(now)
@@ -75,7 +75,10 @@ class MainLoop:
         if clock.ticks_diff(now, self._next_stall_ms) >= 0:
             self._next_stall_ms = clock.ticks_add(now, self._stall_period_ms)
             self._check_stall()
-        self._check_deadman(now)
+        if clock.ticks_diff(now, self._next_track_ms) >= 0:
+            self._next_track_ms = clock.ticks_add(now, self.track.sample_ms)
+            self._check_tracking()
+        self._check_deadman()
         self._refresh_caches()
 
     def _set_flags(self, mask):
@@ -95,7 +98,7 @@ class MainLoop:
         (each at most 3 ms old; every call costs tens of microseconds on the chip)."""
         hal = self.hal
         last = self._cache_values
-        value = hal.angle_moved()
+        value = self._host_angle()
         if value != last[0]:
             last[0] = value
             self._store_f32(self._cache[ANGLEMOVED], value, ANGLE_Q)

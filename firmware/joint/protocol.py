@@ -80,6 +80,9 @@ REJECT_VALUE = const(4)
 REJECT_BUSY = const(5)
 REJECT_QUEUE_FULL = const(6)
 REJECT_DISABLED = const(7)
+REJECT_NOT_ENABLED = const(8)
+REJECT_STALLED = const(9)
+REJECT_HOMING_SENSITIVITY = const(10)
 REJECT_REASONS = (
     (REJECT_NONE, "none"),
     (REJECT_UNKNOWN_REGISTER, "unknown register"),
@@ -89,6 +92,9 @@ REJECT_REASONS = (
     (REJECT_BUSY, "a blocking command is already running"),
     (REJECT_QUEUE_FULL, "command queue full, command not accepted"),
     (REJECT_DISABLED, "joint disabled by an invalid configuration"),
+    (REJECT_NOT_ENABLED, "motion refused: the joint is not enabled (SETUP enables it)"),
+    (REJECT_STALLED, "motion refused: the joint is stalled (SETUP or ENABLESTALLGUARD re-arms it)"),
+    (REJECT_HOMING_SENSITIVITY, "homing sensitivity at or below the joint's PID-error noise floor"),
 )
 
 # Field kinds: struct code and size.
@@ -110,9 +116,9 @@ def _f32_halves(value):
 class Field:
     """One value in a payload.
 
-    U8 fields accept `lo <= value <= hi`. F32 fields accept a finite value whose magnitude lies in
+    U8 and U16 fields accept `lo <= value <= hi`. F32 fields accept a finite value whose magnitude lies in
     `[lo, hi]` (either sign: the original host sends negative limits for J2). I32 fields accept
-    any value. CHAR, U16 and U32 fields only appear in replies.
+    any value. CHAR and U32 fields only appear in replies.
     """
 
     def __init__(self, name, kind, unit="", lo=0, hi=0):
@@ -131,6 +137,8 @@ class Field:
         kind = self.kind
         if kind == U8:
             return self.lo <= buf[off] <= self.hi
+        if kind == U16:
+            return self.lo <= (buf[off] | (buf[off + 1] << 8)) <= self.hi
         if kind == F32:
             b3 = buf[off + 3] & 0x7F
             b2 = buf[off + 2]
@@ -144,7 +152,7 @@ class Field:
         return kind == I32
 
     def describe_range(self):
-        if self.kind == U8:
+        if self.kind == U8 or self.kind == U16:
             return "%d..%d" % (self.lo, self.hi)
         if self.kind == F32:
             return "finite, |value| in [%g, %g]" % (self.lo, self.hi)
@@ -279,6 +287,9 @@ HOMEOFFSET = const(0x2E)
 IDENTITY = const(0x30)
 LASTERROR = const(0x31)
 PROTOCOL = const(0x32)
+HOMINGTRAVEL = const(0x33)
+WATCHDOG = const(0x34)
+WATCHDOG_MAX_MS = const(5000)
 
 BRAKE_FREEWHEEL = const(0)
 BRAKE_COOLBRAKE = const(1)
@@ -355,6 +366,12 @@ REGISTERS = (
     Register(PROTOCOL, "PROTOCOL", write=(Field("protocol", U8, "1 legacy, 2 v2 memory map", 1, 2),),
              doc="extension: 2 makes the joint serve the v2 memory map (protocol_v2.py) from the "
                  "next main-loop pass; 1 (also a v2 command) or host silence returns it here"),
+    Register(WATCHDOG, "WATCHDOG", write=(Field("timeout", U16, "ms", 0, WATCHDOG_MAX_MS),),
+             read=(Field("timeout", U16, "ms"),),
+             doc="extension: host-silence timeout for every motion mode (velocity, positioning, "
+                 "homing, orientation check); 0 (boot): the original's, velocity only"),
+    Register(HOMINGTRAVEL, "HOMINGTRAVEL", read=_f32("travel", _DEG),
+             doc="extension: encoder travel of the last successful homing, start to end stop"),
 )
 
 BY_ADDR = [None] * 256

@@ -1,13 +1,83 @@
-"""The joint core's supervision: stall detection and the deadman, run by the main loop."""
+"""The joint core's supervision: stall detection, the deadman and refusals, run by the main loop
+(`_refusal` by the IRQ path).
 
-from .protocol import FLAG_BUSY, FLAG_NOTENABLED, FLAG_STALL
+Deadman. A freshly booted joint keeps the original's: more than `deadman_ms` (50) without a
+transaction while the velocity setpoint is not 0 stops it, so original-host programs that poll at
+10 Hz during position moves keep working. Once a host writes WATCHDOG (ours does when it configures
+a joint) its timeout covers every motion mode: velocity, positioning, homing, orientation check.
+Either way the flags do not matter (a joint whose current or closed loop was turned off still
+turns), the stop starts on the first main-loop tick after the timeout and brakes at the per-joint
+`stop_deceleration` (the fastest stop that keeps position, not the host's slow acceleration), then
+takes the per-joint `safe_action`: hold at the hold current, or freewheel.
+
+Stall detection. `stall.detector` picks the original (stall.py, filtered |PID error|) or the
+tracking detector (tracking.py, the encoder no longer following the field);
+`set_stall_detector()` switches at run time (bench, tests).
+"""
+
+from .fixed import muldiv
+from .protocol import (
+    FLAG_BUSY, FLAG_NOTENABLED, FLAG_NOTHOMED, FLAG_STALL, HOME, MOVEANGLE, MOVESTEPS, MOVETOANGLE,
+    REJECT_HOMING_SENSITIVITY, REJECT_NONE, REJECT_NOT_ENABLED, REJECT_STALLED, SETRPM,
+)
+
+try:
+    from micropython import const
+except ImportError:
+    def const(value):
+        return value
+
+ORIGINAL = const(0)
+TRACKING = const(1)
+DETECTOR_NAMES = ("original", "tracking")
 
 
 class Supervisor:
     """JointController's supervision (mixed into it)."""
 
+    def set_stall_detector(self, name):
+        """Select the stall detector by name ("original" or "tracking")."""
+        self.detector = DETECTOR_NAMES.index(name)
+        self.stall.reset()
+        self.track.reset()
+
+    def _encoder_usteps(self):
+        """The encoder angle in usteps (int): degrees Q12 x 51200 / 360 / 4096 = 5 / 144, exact on
+        the Pico, where the angle is AS5600 counts x 360."""
+        a = self.hal.angle_moved()
+        if a >= 0:
+            return muldiv(a, 5, 144)
+        return -muldiv(-a, 5, 144)
+
+    def _host_angle(self):
+        """The angle the host sees (ANGLEMOVED, MOVETOANGLE), degrees Q12: 0 at the end stop
+        homing found."""
+        return self.hal.angle_moved() + self.zero_offset
+
+    # ---- IRQ path: no allocation ----
+
+    def _refusal(self, addr, frame):
+        """Why a well-formed frame is refused in the joint's present state (REJECT_NONE: taken)."""
+        if addr == HOME:
+            floor = self._homing_floor + ((frame[2] * self._homing_floor_q) >> 10)
+            return REJECT_HOMING_SENSITIVITY if frame[3] <= floor else REJECT_NONE
+        if addr == SETRPM:
+            if frame[1] == 0 and frame[2] == 0 and frame[3] == 0 and frame[4] & 0x7F == 0:
+                return REJECT_NONE  # 0 rpm always goes through
+        elif addr != MOVETOANGLE and addr != MOVEANGLE and addr != MOVESTEPS:
+            return REJECT_NONE
+        flags = self.flags
+        if flags & FLAG_STALL:
+            return REJECT_STALLED
+        if flags & FLAG_NOTENABLED:
+            return REJECT_NOT_ENABLED
+        return REJECT_NONE
+
+    # ---- main loop ----
+
     def _check_stall(self):
-        if not self.stallguard or self.flags & (FLAG_STALL | FLAG_BUSY):
+        """The original detector, every stall.sample_time."""
+        if self.detector != ORIGINAL or not self.stallguard or self.flags & (FLAG_STALL | FLAG_BUSY):
             return
         hal = self.hal
         rearms = self.stall_rearms
@@ -19,11 +89,82 @@ class Supervisor:
             self.log.warn("stall detected (filtered error %.1f > threshold %.1f)"
                           % (self.stall.filtered, self.stall.threshold))
 
-    def _check_deadman(self, now):
-        """Velocity or position motion stops when the host has been silent too long."""
-        if self.flags & (FLAG_NOTENABLED | FLAG_BUSY) or not (self.qd_set != 0 or self.positioning):
+    def _check_tracking(self):
+        """The tracking detector, every stall.track_sample_ms."""
+        track = self.track
+        if self.detector != TRACKING or not self.stallguard or self.flags & (FLAG_STALL | FLAG_BUSY):
+            track.reset()
             return
-        silent = self.clock.ticks_diff(now, self._last_host_ms)
-        if silent > self.cfg.deadman_ms and self._halt(FLAG_NOTENABLED, transactions=self._seen_transactions):
-            self.hal.set_rpm(0)
-            self.log.warn("deadman: no I2C traffic for %d ms, motor stopped and disabled" % silent)
+        hal = self.hal
+        rearms = self.stall_rearms
+        if track.update(hal.field_position(), self._encoder_usteps()) and self._halt(FLAG_STALL, rearms=rearms):
+            hal.stop(True)
+            self.log.warn("stall detected (encoder %d usteps behind the field, threshold %d)"
+                          % (track.lag, track.threshold))
+            track.reset()
+
+    def _motion_active(self):
+        """What the deadman guards: in watchdog mode every motion; at boot the velocity setpoint."""
+        if not self.watchdog_ms:
+            return self.qd_set != 0
+        if self.qd_set != 0 or self.positioning:
+            return True
+        if self._task is not None and self.task_name != "boot":
+            return True
+        return self.hal.driver_rpm() != 0
+
+    def _check_deadman(self):
+        if self._safe_pending:  # this deadman's quick stop is braking: decided once, not per tick
+            self._safe_action()
+            return
+        if not self._motion_active():
+            return
+        timeout = self.watchdog_ms or self.cfg.deadman_ms
+        clock = self.clock
+        silent = clock.ticks_diff(clock.ticks_us(), self._last_host_us) // 1000  # from the IRQ's stamp
+        if silent < timeout or not self._halt(FLAG_NOTENABLED, transactions=self._seen_transactions):
+            return
+        task = self.task_name
+        if self._task is not None and task != "boot":
+            self._abort_task()
+        self._quick_stop()
+        self._safe_pending = True
+        self.log.warn("deadman: no I2C traffic for %d ms, motor stopped and disabled%s"
+                      % (silent, "" if task is None else " (%s aborted)" % task))
+
+    def _abort_task(self):
+        """End HOME or CHECKORIENTATION where it is, leaving the driver as it was before."""
+        homing = self.task_name == "HOME"
+        self._task.close()
+        self._end_task()
+        hal = self.hal
+        hal.set_inverted(self.inverted)
+        if self.closed_loop:
+            hal.enable_closed_loop()
+        hal.set_current(self.drive_current)
+        hal.set_hold_current(self.hold_current)
+        if homing:
+            self._set_flags(FLAG_NOTHOMED)
+
+    def _quick_stop(self):
+        """Brake at stop_deceleration; the host's limits apply again once the motor stands."""
+        hal = self.hal
+        decel = self.stop_deceleration
+        hal.set_max_acceleration(decel)
+        hal.set_max_deceleration(decel)
+        hal.stop(False)
+        hal.set_max_acceleration(self.max_acceleration)
+        hal.set_max_deceleration(self.max_deceleration)
+        self.qd_set = 0
+        self.positioning = False
+
+    def _safe_action(self):
+        """After a deadman stop, once the motor stands: hold (nothing to do) or freewheel."""
+        if self.hal.driver_rpm() != 0:
+            return
+        self._safe_pending = False
+        if self.cfg.safe_action == "freewheel":
+            hal = self.hal
+            hal.set_hold_current(0)
+            hal.set_current(0)
+            hal.set_brake_mode(0)

@@ -4,8 +4,10 @@ A task holds BUSY while it runs; the main loop steps it when its wait is over (e
 how many milliseconds to wait) or a STOP cancelled it.
 """
 
-from .fixed import ANGLE_Q, RPM_Q, STEPS_Q, to_q
-from .protocol import FLAG_BUSY, FLAG_NOTHOMED, FLAG_STALL, FLAGS_AT_BOOT
+from .fixed import ANGLE_Q, RPM_Q, STEPS_Q, muldiv, to_q
+from .homing import HOMED, OUTCOMES, RUNNING
+from .protocol import FLAG_BUSY, FLAG_NOTHOMED, FLAG_STALL, FLAGS_AT_BOOT, HOMINGTRAVEL
+from .tracking import wrapped_diff
 
 try:
     from micropython import const
@@ -14,9 +16,19 @@ except ImportError:
         return value
 
 _HOMING_SETTLE_MS = const(500)
+_REST_MS = const(100)
+_REST_USTEPS = const(24)  # a few encoder counts of noise
+_SETTLE_MAX_MS = const(3000)
 _MOVE_TIMEOUT_MS = const(10000)
 _ORIENTATION_MAX_ROUNDS = const(10)
 _WIND_DOWN_STEPS = const(8)
+
+
+def _usteps_to_angle(usteps):
+    """usteps as motor degrees Q12 (x 360 * 4096 / 51200 = 144 / 5)."""
+    if usteps >= 0:
+        return muldiv(usteps, 144, 5)
+    return -muldiv(-usteps, 144, 5)
 
 
 class Tasks:
@@ -135,25 +147,73 @@ class Tasks:
             hal.enable_closed_loop()
 
     def _homing(self, direction, speed, sensitivity, current):
-        """Drive into the end stop until |PID error| > sensitivity; STOP (BUSY cleared) aborts."""
+        """Drive into the end stop until homing.py sees it (the encoder stops following the field,
+        sustained); a travel limit or timeout ends it NOTHOMED, STOP (BUSY cleared) aborts it.
+        The motor holds at the homing current throughout: a back-drivable load must not fall."""
         hal = self.hal
+        monitor = self.homing
+        self.qd_set = 0
+        self.positioning = False
+        hal.set_current(current)
+        hal.set_hold_current(current)
         hal.stop(True)
         yield _HOMING_SETTLE_MS
-        homed = False
+        outcome = RUNNING
         if not self._cancelled():
             hal.set_rpm((speed if direction else -speed) << RPM_Q)
-            hal.set_current(current)
+            monitor.start(1 if direction else -1, speed, sensitivity, hal.field_position(),
+                          self._encoder_usteps())
+            clock = self.clock
+            every = monitor.sample_ms
+            start = clock.ticks_ms()
+            due = clock.ticks_add(start, every)
             while not self._cancelled():
-                if abs(hal.pid_error()) > sensitivity:
-                    homed = True
-                    break
+                monitor.watch(hal.pid_error(), self._encoder_usteps())
+                now = clock.ticks_ms()
+                if clock.ticks_diff(now, due) >= 0:  # by the clock: the loop may run slower than 1 kHz
+                    due = clock.ticks_add(now, every)
+                    outcome = monitor.sample(hal.field_position(), self._encoder_usteps(),
+                                             clock.ticks_diff(now, start))
+                    if outcome != RUNNING:
+                        break
                 yield 1
-        if homed:
+        hal.stop(True)
+        if outcome == HOMED:
+            yield from self._settle()
+        if outcome == HOMED and not self._cancelled():
+            # The rotor rebounds off the stop (far, on a stiff stop behind backlash): the zero is
+            # the deepest point the encoder reached while pushing, not where the rotor came to rest.
+            rest = self._encoder_usteps()
+            travel = _usteps_to_angle(wrapped_diff(monitor.deepest, monitor.start_encoder))
+            self._store_f32(self._cache[HOMINGTRAVEL], travel, ANGLE_Q)
             hal.set_home()
+            self.zero_offset = _usteps_to_angle(wrapped_diff(rest, monitor.deepest))
             self._clear_flags(FLAG_NOTHOMED | FLAG_STALL)
             self.log.info("homed")
         else:
             self._set_flags(FLAG_NOTHOMED)
-            self.log.info("homing aborted")
-        hal.stop(True)
+            self.log.warn("homing ended, not homed: %s" % ("aborted by STOP" if outcome == RUNNING
+                                                          else OUTCOMES[outcome]))
         hal.set_current(self.drive_current)
+        hal.set_hold_current(self.hold_current)
+        self.track.reset()
+
+    def _settle(self):
+        """Wait (at most _SETTLE_MAX_MS) until the encoder has moved less than _REST_USTEPS in
+        _REST_MS: the rotor has come to rest after the stop."""
+        clock = self.clock
+        start = clock.ticks_ms()
+        mark = clock.ticks_ms()
+        last = self._encoder_usteps()
+        while not self._cancelled():
+            yield 1
+            now = clock.ticks_ms()
+            here = self._encoder_usteps()
+            moved = here - last
+            if moved > _REST_USTEPS or -moved > _REST_USTEPS:
+                last = here
+                mark = now
+            elif clock.ticks_diff(now, mark) >= _REST_MS:
+                return
+            if clock.ticks_diff(now, start) >= _SETTLE_MAX_MS:
+                return

@@ -23,6 +23,7 @@ class RecordingMotor(MotorHAL):
         self.ramp_rpm = 0.0
         self.error = 0.0
         self.reached = True
+        self.field = 0  # field_position(), usteps
         self.wiring = 0  # +1/-1: relative moves change `angle` like a (mis)wired motor; 0: it never moves
 
     def _record(self, name, *args):
@@ -102,6 +103,9 @@ class RecordingMotor(MotorHAL):
     def position_reached(self):
         return self.reached
 
+    def field_position(self):
+        return self.field
+
 
 class Rig:
     """One joint controller behind a fake I2C target, with a recording motor, in virtual time."""
@@ -168,11 +172,19 @@ class Xorshift:
 class SimRig:
     """One joint running the real firmware on the simulated stepper, on a simulated bus."""
 
-    def __init__(self, joint="J1", low_deg=None, high_deg=None, seed=1, **stepper_kwargs):
+    def __init__(self, joint="J1", low_deg=None, high_deg=None, seed=1, mechanics=None, **stepper_kwargs):
+        """`mechanics`: None for the bare motor model (ustepper-model.md 8.3 defaults), or a dict of
+        joint.sim.mechanics.stepper_kwargs() options ({} = the arm's nominal joint); explicit
+        stepper_kwargs override either."""
+        from joint.sim import mechanics as arm
         from joint.sim.bus import SimJointBus
         from joint.sim.joint import make_joint
         from joint.sim.stepper import SimStepper
         self.clock = VirtualClock()
+        if mechanics is not None:
+            kw = arm.stepper_kwargs(joint, **mechanics)
+            kw.update(stepper_kwargs)
+            stepper_kwargs = kw
         self.stepper = SimStepper(self.clock, seed=seed, **stepper_kwargs)
         self.stepper.set_end_stops(low_deg, high_deg)
         self.lines = []

@@ -77,15 +77,16 @@ class RotorEncoderBus:
 
 
 class PicoJoint:
-    """JointController + I2CTargetAdapter + PicoStepper on the fakes above, booted."""
+    """JointController + I2CTargetAdapter + PicoStepper on the fakes above, booted (`cfg`: a
+    parsed config, e.g. a shipped configs/Jn.json; default: the original's constants)."""
 
-    def __init__(self, joint="J1"):
+    def __init__(self, joint="J1", cfg=None):
         self.clock = VirtualClock()
         self.sm = RotorSM()
         self.uart = FakeTMCBus()
         self.motor = PicoStepper(TMC2209(self.uart), AS5600(RotorEncoderBus(self.sm)),
                                  StepGenerator(self.sm), None, self.clock)
-        self.cfg = config.default(joint)
+        self.cfg = cfg or config.default(joint)
         self.lines = []
         self.core = JointController(self.motor, self.clock, self.cfg,
                                     Logger(joint, write=self.lines.append))
@@ -94,10 +95,13 @@ class PicoJoint:
         self.tick(30000, until_ready=True)
         assert self.core.ready and not self.core.disabled, self.lines
 
-    def tick(self, n=1, until_ready=False):
+    def tick(self, n=1, until_ready=False, poll_every=0):
+        """n service() calls 1 ms apart; with `poll_every`, the host's reads every that many ms."""
         core = self.core
-        for _ in range(n):
+        for i in range(n):
             self.clock.advance(1000)
+            if poll_every and i % poll_every == 0:
+                self.host_poll()
             core.service()
             if until_ready and core.ready:
                 return

@@ -2,10 +2,12 @@
 
 Counted under the MicroPython unix port, which boxes floats like the board: the heap bytes that
 `service()` allocates, summed over many iterations in each state a joint lives in. Under CPython
-(where every int is an object) only the states are exercised. Stall sampling is not covered yet:
-the stall detector still computes in floats.
+(where every int is an object) only the states are exercised. The supervision runs on the shipped
+configs (the tracking stall detector, the homing monitor, the deadman in every mode and its quick
+stop); the original stall detector still computes in floats and is not covered.
 """
 
+from joint import config, protocol as P
 from joint.debug import DebugConsole
 from pico_rig import MICROPYTHON, PicoJoint
 
@@ -14,11 +16,13 @@ N = 400
 
 def _zero(joint, what, poll_every=10):
     got = joint.bytes_per_service(N, poll_every)
+    if got is None:  # CPython: the same iterations, uncounted
+        joint.tick(N, poll_every=poll_every)
     assert got is None or got == 0, "%s: %s bytes allocated per service()" % (what, got)
 
 
-def _moving():
-    j = PicoJoint()
+def _moving(cfg=None):
+    j = PicoJoint(cfg=cfg)
     j.command("SETUP", 40, 20, 0, 0)
     j.tick(2)
     return j
@@ -37,7 +41,7 @@ def test_turning_at_any_speed_allocates_nothing():
     for rpm in (0.5, 30.0, -120.0, 334.0, 1000.0):
         j.command("SETRPM", rpm)
         _zero(j, "accelerating to %s rpm" % rpm)
-        j.tick(3000)
+        j.tick(3000, poll_every=10)  # a polling host keeps the deadman fed
         _zero(j, "turning at %s rpm" % rpm)
     assert j.core.qd_set != 0 and not j.motor.position_reached()
 
@@ -98,3 +102,54 @@ def test_deadman_watching_and_the_idle_console_allocate_nothing():
             j.tick()
             console.poll()
     assert core.qd_set != 0, "the deadman must not fire while the host polls"
+
+
+def _shipped(joint="J1"):
+    """A joint on its shipped configuration (tracking stall detector), enabled."""
+    cfg = config.load("firmware/joint/configs/%s.json" % joint)
+    assert cfg.valid and cfg.stall.detector == "tracking", cfg.errors
+    return _moving(cfg)
+
+
+def test_stall_sampling_with_the_tracking_detector_allocates_nothing():
+    j = _shipped()
+    j.command("ENABLESTALLGUARD", 6)
+    j.command("SETRPM", 100.0)
+    j.tick(1000, poll_every=10)
+    _zero(j, "turning with the tracking detector sampling")
+    assert j.core.stallguard and j.core.track.speed != 0, "the detector must be sampling a motion"
+    assert not j.core.flags & P.FLAG_STALL
+
+
+def test_homing_on_the_shipped_config_allocates_nothing():
+    j = _shipped()
+    j.command("WATCHDOG", 50)  # our host's: the deadman watches the homing too
+    j.command("HOME", 1, 10, 200, 30)
+    j.tick(600, poll_every=10)  # past the settle time: driving, the monitor sampling
+    _zero(j, "homing with the monitor and the deadman watching")
+    assert j.core.task_name == "HOME" and j.core.homing.outcome == 0  # still running
+
+
+def test_the_deadman_in_every_mode_allocates_nothing():
+    j = _shipped()
+    j.command("WATCHDOG", 50)
+    j.command("MOVEANGLE", 36000.0)
+    j.tick(2, poll_every=1)
+    _zero(j, "positioning with the watchdog")
+    j.command("SETRPM", 60.0)
+    j.tick(500, poll_every=10)
+    _zero(j, "velocity with the watchdog")
+    assert j.core.qd_set != 0 and not j.core.flags & P.FLAG_NOTENABLED
+
+
+def test_the_deadman_quick_stop_allocates_nothing_after_its_decision():
+    j = _shipped()
+    j.command("WATCHDOG", 50)
+    j.command("SETRPM", 300.0)
+    j.tick(1500, poll_every=10)  # at speed
+    core = j.core
+    while not core.flags & P.FLAG_NOTENABLED:  # silence: the decision (its log line allocates)
+        j.tick()
+    assert core._safe_pending and j.motor.driver_rpm() != 0, "the quick stop must be braking"
+    _zero(j, "braking at stop_deceleration, then holding", poll_every=0)
+    assert j.motor.driver_rpm() == 0 and not core._safe_pending

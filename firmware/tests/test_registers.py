@@ -13,13 +13,13 @@ COMMANDS = (
     ("SETUP", (20, 30, 0, 0), False, ENABLED,
      [("set_current", 20), ("set_hold_current", 30), ("move_steps", 0)]),
     ("SETRPM", (12.5,), True, ENABLED, [("set_rpm", 12.5)]),
-    ("SETRPM", (12.5,), False, OFF, []),
+    ("SETRPM", (12.5,), False, OFF | P.FLAG_ERROR, []),  # refused: not enabled
     ("SETRPM", (0.0,), False, OFF, [("set_rpm", 0.0)]),
     ("MOVESTEPS", (-51200,), True, ENABLED, [("move_steps", -51200)]),
-    ("MOVESTEPS", (100,), False, OFF, []),
+    ("MOVESTEPS", (100,), False, OFF | P.FLAG_ERROR, []),
     ("MOVEANGLE", (-5.0,), True, ENABLED, [("move_angle", -5.0)]),
     ("MOVETOANGLE", (90.0,), True, ENABLED, [("move_to_angle", 90.0)]),
-    ("MOVETOANGLE", (90.0,), False, OFF, []),
+    ("MOVETOANGLE", (90.0,), False, OFF | P.FLAG_ERROR, []),
     ("SETCURRENT", (30,), True, ENABLED, [("set_current", 30)]),
     ("SETCURRENT", (0,), True, ENABLED | P.FLAG_NOTENABLED, [("set_current", 0)]),
     ("SETHOLDCURRENT", (25,), True, ENABLED, [("set_hold_current", 25)]),
@@ -104,7 +104,7 @@ def test_enable_stall_guard_clears_stall_and_motion_resumes():
     rig = Rig()
     _enable(rig)
     rig.core.flags |= P.FLAG_STALL
-    assert rig.command("SETRPM", 10.0) == ENABLED | P.FLAG_STALL
+    assert rig.command("SETRPM", 10.0) == ENABLED | P.FLAG_STALL | P.FLAG_ERROR
     rig.run_ms(1)
     assert rig.motor.calls == [], "motion is ignored while stalled"
     assert rig.command("ENABLESTALLGUARD", 6) == ENABLED
@@ -135,13 +135,20 @@ def test_home_sets_nothomed_and_busy_in_its_reply_then_runs_in_main_loop():
     rig.motor.error = 0.0
     assert rig.command("HOME", 1, 10, 30, 15) == ENABLED | P.FLAG_NOTHOMED | P.FLAG_BUSY
     rig.run_ms(600)
-    assert rig.motor.calls[:3] == [("stop", True), ("set_rpm", 10), ("set_current", 15)]
+    assert rig.motor.calls[:4] == [("set_current", 15), ("set_hold_current", 15), ("stop", True),
+                                   ("set_rpm", 10)], "energized (holding) before it settles"
     assert rig.core.flags & P.FLAG_BUSY, "holds BUSY until the end stop"
     rig.motor.error = 31.0
-    rig.run_ms(2)
+    rig.run_ms(50)
+    assert ("set_home",) not in rig.motor.calls, "one PID-error spike is no end stop"
+    for _ in range(10):  # the field runs on, the encoder stays: the end stop
+        rig.motor.field += 400
+        rig.run_ms(5)
+    rig.run_ms(200)  # it settles against the stop before zeroing
     assert ("set_home",) in rig.motor.calls
     assert rig.core.flags == 0, "homed, enabled, not busy"
-    assert rig.motor.calls[-2:] == [("stop", True), ("set_current", 20)], "stop, restore drive current"
+    assert rig.motor.calls[-4:] == [("stop", True), ("set_home",), ("set_current", 20),
+                                    ("set_hold_current", 20)], "stop, zero, restore the currents"
 
 
 def test_home_negative_direction_turns_negative():

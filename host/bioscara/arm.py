@@ -69,6 +69,8 @@ def activate_joint(joint: Joint, config: JointConfig) -> None:
     """Enable with the configured currents, then stall detection (after SETUP, which turns it
     off) if the threshold is set, then the motion limits: the original's activate_joint."""
     joint.enable(config.drive_current, config.hold_current)
+    if config.watchdog_ms:
+        joint.set_watchdog(config.watchdog_ms)  # fed by every transaction of the control cycle
     if config.stall_threshold > 0:
         joint.enable_stallguard(config.stall_threshold)
     joint.set_max_acceleration(config.max_acceleration)
@@ -77,7 +79,8 @@ def activate_joint(joint: Joint, config: JointConfig) -> None:
 
 def make_joint(config: JointConfig, bus: Bus) -> Joint:
     return Joint(config.name, config.address, bus, reduction=config.reduction, min=config.min,
-                 max=config.max, max_velocity=config.max_velocity)
+                 max=config.max, max_velocity=config.max_velocity,
+                 homing_range_check=config.homing.range_tolerance if config.homing.check_range else None)
 
 
 PROTOCOLS = ("auto", "legacy", "v2")
@@ -231,6 +234,14 @@ class Arm:
 
     def _deactivate_joint(self, aj: ArmJoint) -> None:
         aj.joint.disable()
+
+    def _release_for_homing(self, aj: ArmJoint) -> None:
+        """Home mode starts: disable the joint until its homing starts, or with `homing.hold` only
+        stop it, energized at the hold current, so a back-drivable load cannot fall meanwhile."""
+        if aj.config.homing.hold:
+            aj.joint.stop()
+        else:
+            aj.joint.disable()
 
     def _start_homing(self, aj: ArmJoint, direction: float) -> None:
         homing = aj.config.homing
@@ -450,9 +461,11 @@ class Arm:
             if mode is Mode.HOME:
                 aj.command.home = 0.0
                 if active:
-                    steps.append(lambda aj=aj: self._deactivate_joint(aj))
+                    steps.append(lambda aj=aj: self._release_for_homing(aj))
             elif mode is Mode.POSITION:
                 aj.command.position = aj.state.position
+                if math.isfinite(aj.state.position):  # hold it where it stands, onto the limit
+                    aj.command.position = min(max(aj.state.position, aj.joint.min), aj.joint.max)
             else:
                 aj.command.velocity = 0.0
         for step in steps:
@@ -478,8 +491,8 @@ class Arm:
         j = self[joint].joint
         if not math.isfinite(value):
             raise InvalidArgumentError(f"{mode} command must be finite, got {value}", joint=joint)
-        if mode == Mode.POSITION.value and not j.min <= value <= j.max:
-            raise InvalidArgumentError(f"position {value:g} is outside [{j.min:g}, {j.max:g}]", joint=joint)
+        if mode == Mode.POSITION.value:
+            j.within_limits(value)
         if mode == Mode.VELOCITY.value and abs(value) > j.max_velocity:
             raise InvalidArgumentError(f"|velocity| {abs(value):g} exceeds max_velocity {j.max_velocity:g}",
                                        joint=joint)

@@ -48,6 +48,11 @@ class HomingConfig:
     current: int  # motor current during homing, % 0..100
     acceleration: float  # joint units/s^2, > 0
     direction: int = -1  # default direction (-1 or +1) for `home all` and the demo
+    # Check after homing that the stop found is plausible: the homing travelled no more than the
+    # joint's range, and (re-homing) about as far as the end stop was from where it started.
+    check_range: bool = False
+    range_tolerance: float = 0.0  # joint units allowed on top of the check's own slack
+    hold: bool = False  # stay energized (hold current) between home mode starting and homing
 
 
 @dataclass(frozen=True)
@@ -66,6 +71,7 @@ class JointConfig:
     max_acceleration: float  # joint units/s^2
     max_velocity: float  # joint units/s
     homing: HomingConfig
+    watchdog_ms: int = 50  # host-silence timeout for every motion mode, 0: the firmware's original
 
 
 @dataclass(frozen=True)
@@ -217,6 +223,7 @@ _JOINT_KEYS = {
     "drive_current": _int(0, 100),
     "max_acceleration": _positive(),
     "max_velocity": _positive(),
+    "watchdog_ms": _int(0, 5000, default=50),
 }
 _HOMING_KEYS = {
     "speed": _positive(),
@@ -224,6 +231,9 @@ _HOMING_KEYS = {
     "current": _int(0, 100),
     "acceleration": _positive(),
     "direction": _Key(int, choices=(-1, 1), default=-1),
+    "check_range": _Key(bool, default=False),
+    "range_tolerance": _Key(float, lo=0.0, hi=1e6, default=0.0),
+    "hold": _Key(bool, default=False),
 }
 _GRIPPER_KEYS = {
     "reduction": _Key(float, nonzero=True),

@@ -36,6 +36,10 @@ log = logging.getLogger("bioscara.joint")
 CACHED_FLAGS = P.FLAG_STALL | P.FLAG_BUSY | P.FLAG_NOTHOMED | P.FLAG_NOTENABLED
 V2_SWITCH_S = 0.001  # one pass of the joint's main loop
 V2_FALLBACK_AFTER = 3  # corrupted v2 states in a row before checking whether the joint went legacy
+# A joint resting at its end stop reads a hair beyond it: encoder noise and error at rest, and the
+# float32 motor degrees of the wire. Positions this close (motor degrees) beyond a limit count as
+# on it (they are clamped onto it), so holding a joint where it stands never fails.
+LIMIT_SLACK_DEG = 0.5
 
 
 class BrakeMode(IntEnum):
@@ -92,7 +96,7 @@ class Joint:
 
     def __init__(self, name: str, address: int, bus: Bus, *, reduction: float = 1.0,
                  min: float = -math.inf, max: float = math.inf, max_velocity: float = math.inf,
-                 flags_max_age: float = 0.02) -> None:
+                 flags_max_age: float = 0.02, homing_range_check: float | None = None) -> None:
         if not min < max:
             raise InvalidArgumentError(f"min ({min}) must be below max ({max})", joint=name)
         self.name = name
@@ -102,6 +106,10 @@ class Joint:
         self.max = max
         self.max_velocity = max_velocity
         self.flags_max_age = flags_max_age
+        self.homing_range_check = homing_range_check  # tolerance (joint units); None: no check
+        self.watchdog_ms = 0  # what the joint's WATCHDOG was last set to by this host
+        self._start_position: float | None = None
+        self._homing_refused = False  # the last homing found an implausible stop
         self.transmission = Transmission(reduction)
         self.flags = P.FLAGS_AT_BOOT
         self.flags_time = -math.inf
@@ -225,7 +233,7 @@ class Joint:
     # ---- flags ----
 
     def is_homed(self) -> bool:
-        return not self.flags & P.FLAG_NOTHOMED
+        return not self.flags & P.FLAG_NOTHOMED and not self._homing_refused
 
     def is_enabled(self) -> bool:
         return not self.flags & P.FLAG_NOTENABLED
@@ -267,6 +275,12 @@ class Joint:
         if first is not None:
             raise first
 
+    def set_watchdog(self, milliseconds: int) -> None:
+        """Stop every motion (velocity, positioning, homing, orientation check) when this host is
+        silent for `milliseconds`; 0 restores the original's deadman (velocity only, 50 ms)."""
+        self._command(P.WATCHDOG, milliseconds)
+        self.watchdog_ms = milliseconds
+
     def stop(self) -> None:
         """RPM 0; also aborts a running homing (the firmware clears BUSY)."""
         self._command(P.STOP, 0)
@@ -307,14 +321,27 @@ class Joint:
             raise NotHomedError("position is meaningless before homing", joint=self.name)
         return self.transmission.position(degrees)
 
+    @property
+    def limit_slack(self) -> float:
+        """How far beyond min/max (joint units) a position still counts as on the limit."""
+        return math.radians(LIMIT_SLACK_DEG) / abs(self.transmission.reduction)
+
+    def within_limits(self, position: float) -> float:
+        """`position` clamped onto [min, max] if it lies within `limit_slack` of them; raises
+        InvalidArgumentError if it is farther out or not finite."""
+        slack = self.limit_slack
+        if not (math.isfinite(position) and self.min - slack <= position <= self.max + slack):
+            raise InvalidArgumentError(f"position {position:g} is outside [{self.min:g}, {self.max:g}]",
+                                       joint=self.name)
+        return min(max(position, self.min), self.max)
+
     def set_position(self, position: float) -> None:
-        """Move to `position` (joint units) within [min, max]."""
+        """Move to `position` (joint units) within [min, max] (see `within_limits`)."""
         self._check_stall(self._command(P.MOVETOANGLE, self.position_setpoint(position)))
 
     def position_setpoint(self, position: float) -> float:
         """The MOVETOANGLE value (motor degrees) for `position`, after the guards."""
-        if not (math.isfinite(position) and self.min <= position <= self.max):
-            raise InvalidArgumentError(f"position {position} is outside [{self.min}, {self.max}]", joint=self.name)
+        position = self.within_limits(position)
         self._require_enabled_and_homed()
         return self.transmission.motor_degrees(position)
 
@@ -399,6 +426,9 @@ class Joint:
             raise InvalidArgumentError(f"homing velocity {velocity} is {rpm:.2f} motor RPM, "
                                        "outside 1..250", joint=self.name)
         self._require_enabled()
+        self._start_position = None
+        if self.homing_range_check is not None and self.is_homed():
+            self._start_position = self.get_position()
         self._command(P.HOME, 1 if rpm > 0 else 0, round(abs(rpm)), sensitivity, current)
         self.current_blocking = BlockingCommand.HOME
         self._homing_offset = self.max if velocity > 0 else self.min
@@ -409,10 +439,32 @@ class Joint:
             raise IncorrectStateError("no homing was started", joint=self.name)
         self.current_blocking = BlockingCommand.NONE
         self.get_flags()
+        self._homing_refused = False
         if not self.is_homed():
             raise NotHomedError("homing ended without reaching the end stop", joint=self.name)
+        if self.homing_range_check is not None:
+            self._check_homed_range(self.homing_range_check)
         self.transmission = self.transmission.with_offset(self._homing_offset)
         self._command(P.HOMEOFFSET, self._homing_offset)
+
+    def _check_homed_range(self, tolerance: float) -> None:
+        """The stop homing found must be plausible: no farther than the joint's range from where it
+        started, and (when the joint was homed before) about where the end stop was expected."""
+        (travel,) = self._read(P.register(P.HOMINGTRAVEL))
+        scale = math.degrees(abs(self.transmission.reduction))  # motor degrees per joint unit
+        slack = tolerance * scale + 2.0 * LIMIT_SLACK_DEG
+        problem = None
+        if abs(travel) > (self.max - self.min) * scale + slack:
+            problem = (f"homing travelled {abs(travel):.1f} motor degrees, more than the joint's "
+                       f"whole range ({(self.max - self.min) * scale:.1f})")
+        elif self._start_position is not None:
+            expected = abs(self._homing_offset - self._start_position) * scale
+            if abs(abs(travel) - expected) > slack:
+                problem = (f"homing stopped {abs(travel):.1f} motor degrees from its start; the end "
+                           f"stop was {expected:.1f} away (an obstacle?)")
+        if problem is not None:
+            self._homing_refused = True
+            raise NotHomedError(problem + ": not taken as homed", joint=self.name)
 
     def get_homing_offset(self) -> float:
         """The offset stored on the joint by the last homing (joint units)."""
@@ -423,7 +475,10 @@ class Joint:
         return offset
 
     def wait_while_busy(self, period: float, timeout: float) -> None:
-        """Poll the flags every `period` s until BUSY drops; WaitTimeoutError after `timeout` s."""
+        """Poll the flags every `period` s (faster if the watchdog needs it) until BUSY drops;
+        WaitTimeoutError after `timeout` s."""
+        if self.watchdog_ms:
+            period = min(period, self.watchdog_ms / 4000.0)
         deadline = self.bus.monotonic() + timeout
         while True:
             self.bus.sleep(period)
@@ -521,8 +576,12 @@ class Joint:
             return BioscaraError(f"the joint rejected {reg.name}", joint=self.name)
         if why.reason == P.REJECT_BUSY:
             return IncorrectStateError(f"the joint rejected {why.text}", joint=self.name)
-        if why.reason == P.REJECT_DISABLED:
+        if why.reason in (P.REJECT_DISABLED, P.REJECT_NOT_ENABLED):
             return NotEnabledError(f"the joint rejected {why.text}", joint=self.name)
+        if why.reason == P.REJECT_STALLED:
+            return StalledError(f"the joint rejected {why.text}", joint=self.name)
+        if why.reason == P.REJECT_HOMING_SENSITIVITY:
+            return InvalidArgumentError(f"the joint rejected {why.text}", joint=self.name)
         if why.reason in (P.REJECT_VALUE, P.REJECT_LENGTH):
             return InvalidArgumentError(f"the joint rejected {why.text}", joint=self.name)
         return BioscaraError(f"the joint rejected {why.text}", joint=self.name)

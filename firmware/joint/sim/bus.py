@@ -1,25 +1,41 @@
 """Simulated joints on one I2C bus in virtual time.
 
-Every transaction advances the shared clock by its wire time at the bus speed (protocol.wire_bits),
-and every joint's main loop runs once per simulated millisecond in between, so host waits, homing,
-stalls and the deadman all play out deterministically and faster than real time.
+Every transaction advances the shared clock by its wire time at the bus speed (protocol.wire_bits)
+plus the clock stretching the joint chip shows for it, and every joint's main loop runs at the
+period the chip achieves, with its garbage-collection pauses (sim.chip: the cost table that
+`make bench-chip` measures), so host waits, homing, stalls and the deadman all play out
+deterministically, faster than real time and no faster than the chip.
 """
 
 from ..protocol import wire_bits
+from .chip import ChipCosts
 
 NACK_ERRNO = 121  # EREMOTEIO: what Linux I2C adapters report for an unacknowledged address
-_TICK_US = 1000
+
+_DEFAULT = []  # the repository's cost table, loaded once
+
+
+def default_costs():
+    if not _DEFAULT:
+        _DEFAULT.append(ChipCosts.load())
+    return _DEFAULT[0]
 
 
 class SimJointBus:
-    def __init__(self, clock, joints=(), bus_hz=400000):
+    """`chip`: a sim.chip.ChipCosts (default: the repository's table); sim.chip.FREE for a free
+    chip (1 ms loop, no clock stretching)."""
+
+    def __init__(self, clock, joints=(), bus_hz=400000, chip=None):
         self.clock = clock
         self.bus_hz = bus_hz
+        self.chip = default_costs() if chip is None else chip
         self.joints = []
         self._by_addr = {}
-        self._next_tick = clock.ticks_us()
+        self._next = []  # per joint: time of its next main-loop iteration (us, float)
+        self._iterations = []
         self._fraction_us = 0.0
         self.bits = 0
+        self.stretch_us = 0.0
         self.transactions = 0
         for joint in joints:
             self.add(joint)
@@ -29,18 +45,40 @@ class SimJointBus:
             raise ValueError("two joints at address 0x%02x" % joint.cfg.address)
         self.joints.append(joint)
         self._by_addr[joint.cfg.address] = joint
+        self._next.append(float(self.clock.ticks_us()))
+        self._iterations.append(0)
 
     def joint_at(self, addr):
         return self._by_addr.get(addr)
 
+    @property
+    def loop_us(self):
+        """Main-loop period of every joint, us (without the garbage-collection pauses)."""
+        return self.chip.loop_us
+
     def run_until(self, t_us):
         """Run every joint's main loop up to virtual time t_us."""
         clock = self.clock
-        while self._next_tick <= t_us:
-            clock.now_us = self._next_tick
-            for joint in self.joints:
-                joint.tick()
-            self._next_tick += _TICK_US
+        nxt = self._next
+        period = self.chip.loop_us
+        gc_every = self.chip.gc_every
+        gc_pause = self.chip.gc_pause_us
+        count = len(nxt)
+        while count:
+            i = 0
+            for k in range(1, count):
+                if nxt[k] < nxt[i]:
+                    i = k
+            t = nxt[i]
+            if t > t_us:
+                break
+            now = int(t)
+            if now > clock.now_us:
+                clock.now_us = now
+            self.joints[i].tick()
+            n = self._iterations[i] + 1
+            self._iterations[i] = n
+            nxt[i] = t + period + (gc_pause if gc_every and n % gc_every == 0 else 0.0)
         if t_us > clock.now_us:
             clock.now_us = t_us
 
@@ -57,9 +95,10 @@ class SimJointBus:
             self.sleep(0.01)
         return True
 
-    def _spend(self, bits):
+    def _spend(self, bits, stretch_us=0.0):
         self.bits += bits
-        self._fraction_us += bits * 1e6 / self.bus_hz
+        self.stretch_us += stretch_us
+        self._fraction_us += bits * 1e6 / self.bus_hz + stretch_us
         whole = int(self._fraction_us)
         self._fraction_us -= whole
         self.run_until(self.clock.now_us + whole)
@@ -76,10 +115,14 @@ class SimJointBus:
             self._spend(wire_bits(0, 0))
             raise OSError(NACK_ERRNO, "no ACK from I2C address 0x%02x" % addr)
         reply = joint.target.transfer(data, read_len)
-        if data is None:
-            self._spend(2 + 9 * (1 + read_len))  # START, address + data, STOP: no write phase
+        if joint.target.serves_memory:
+            stretch = self.chip.mem_held_us  # the v2 memory map is served in C
         else:
-            self._spend(wire_bits(len(data), read_len))
+            stretch = self.chip.scl_held_us(data[0] if data else None, data is not None and len(data) > 1)
+        if data is None:
+            self._spend(2 + 9 * (1 + read_len), stretch)  # START, address + data, STOP: no write phase
+        else:
+            self._spend(wire_bits(len(data), read_len), stretch)
         return reply
 
     def scan(self):

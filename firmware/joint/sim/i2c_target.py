@@ -125,6 +125,11 @@ class FakeI2CTarget:
             n += 1
         return n
 
+    @property
+    def serves_memory(self):
+        """Memory mode: the port serves every byte in C, with no handler holding SCL."""
+        return self._mem is not None
+
     def deinit(self):
         self._handler = None
 

@@ -7,27 +7,42 @@ so a blocked rotor shows a bounded error with pole-slip spikes, never a growing 
 
 Physics (Level 2 of section 8.4, integrated cheaply): the rotor is an inertia pulled toward the
 field by T_max*sin(2*pi*(F - R)/1024) (50 pole pairs), T_max = T_hold*(I+1)/32 rolled off by back-EMF,
-minus viscous, Coulomb (with stiction) and external load torque. Semi-implicit Euler sub-steps are
-laid on the ISR grid, as many per ISR period as the slip speed and the electrical stiffness need
-(one or two in synchronous running, more while slipping or touching a wall), and none while
-everything rests. Walls are one-sided springs with damping, sub-stepped finely while touched.
+minus viscous, Coulomb (with stiction) and external load torque. With a load (load_inertia > 0) the
+rotor drives a second inertia, the link reflected through the reduction, over a spring-damper with
+a dead band (belt or lead-screw compliance, backlash); the load carries its own friction, a constant
+torque (gravity on a vertical axis) and the walls. Without one the walls act on the rotor itself.
+Sub-steps are laid on the ISR grid, as many per ISR period as the slip speed and the electrical
+stiffness need (one to a few in synchronous running, more while slipping), and none while
+everything rests. Coupling, viscous and wall forces are integrated implicitly (backward Euler, a
+2x2 solve per sub-step), so a wall or a coupling of any stiffness and damping stays stable and
+never throws the rotor back; the magnetic torque and friction are explicit. Walls are one-sided
+springs, damped only while being compressed.
 
 Frames: R (rotor) and F (field) are mechanical usteps in the physical frame, 0 = rotor angle at
-construction; the field advances by wiring_sign * (shaft ? -1 : 1) per driver ustep. The encoder
-counts grow with R (the connector/magnet orientation is folded into wiring_sign).
+construction; the field advances by wiring_sign * (shaft ? -1 : 1) per driver ustep. The load L is
+in the same motor frame (joint angle times the reduction, 0 = where it started). The encoder sits
+on the rotor; its counts grow with R (the connector/magnet orientation is folded into wiring_sign).
 
 Simulator hooks (not part of MotorHAL):
     rotor_angle()                  true rotor angle, motor degrees (0 = at construction)
-    set_end_stops(low_deg=None, high_deg=None)   one-sided walls in that frame (None: no wall)
-    add_obstacle(angle_deg, direction)           a wall at angle_deg blocking motion in direction +1/-1
+    slipped_periods()              electrical periods lost (pole slips) since construction
+    load_angle()                   true position of the driven link in motor degrees (the rotor
+                                   when there is no load model)
+    set_end_stops(low_deg=None, high_deg=None)   one-sided walls on the load (None: no wall)
+    add_obstacle(angle_deg, direction, stiffness=None, damping=None)
+                                   a wall at angle_deg blocking motion in direction +1/-1, with its
+                                   own stiffness (N*m/rad) and damping (N*m*s/rad) as seen from the
+                                   motor (default: the end stops')
     clear_obstacles()              remove the obstacles (end stops stay)
-    block()                        a wall where the rotor is now, against its direction of motion
-                                   (rotor speed, else the field's; +1 when both rest)
-    set_load_torque(nm)            constant external torque; positive pushes toward negative angles
+    block(stiffness=None, damping=None)
+                                   a wall where the load is now, against its direction of motion
+                                   (its speed, else the field's; +1 when both rest)
+    set_load_torque(nm)            external torque on the load (on top of the constant load_torque);
+                                   positive pushes toward negative angles
     driver_position()              XACTUAL, usteps
-Walls belong on the side the rotor is not on: one placed behind the rotor pushes it out like a
-compressed spring. The default stiffness is a rigid stop on the motor shaft; a collision of the arm
-seen through the joint reduction N is far softer (joint stiffness / N^2).
+Walls belong on the side the load is not on: one placed behind it pushes it out like a
+compressed spring. A collision of the arm seen through the joint reduction N is far softer than
+the same contact on the motor shaft (joint stiffness / N^2); mechanics.py has the arm's values.
 
 Before begin() the driver is unconfigured: coils off, ISR not running. stop() does not busy-wait as
 the library does: it starts the deceleration and update() completes it. driver_rpm() reports the
@@ -45,10 +60,10 @@ _T_ISR = 1.0 / _F_ISR
 _T_ISR_US = 1e6 / _F_ISR
 _USTEPS_PER_REV = 51200.0
 _COUNTS_PER_REV = 32768.0
-_COUNTS_PER_USTEP = _COUNTS_PER_REV / _USTEPS_PER_REV
 _ANGLE_TO_STEP = 51200.0 / 360.0
 _KE = 2.0 * math.pi / 1024.0  # electrical radians per ustep (one period = 4 full steps)
 _RAD_PER_USTEP = 2.0 * math.pi / _USTEPS_PER_REV
+_USTEPS_PER_RAD = _USTEPS_PER_REV / (2.0 * math.pi)
 # TMC5130 at fCLK = 10 MHz: register units to usteps/s and usteps/s^2.
 _VREG = 10e6 / 2 ** 24
 _AREG = 1e14 / 2 ** 41
@@ -63,6 +78,8 @@ _POWERDOWN_S = (2 ** 20 + 20 * 2 ** 18) / 10e6
 # Physics resolution: field-rotor slip per sub-step (usteps), and omega_n * h per sub-step.
 _SLIP_PER_SUBSTEP = 100.0
 _WN_H = 0.4
+_WN_H_CPL = 0.8  # the coupling and walls are implicit: sub-stepped for accuracy only
+_MAX_WALL_SUBSTEPS = 8
 _WALL_MARGIN = 64.0  # usteps: closer than this (plus a tick of travel) counts as touching a wall
 _FAR = 1e30
 
@@ -110,46 +127,76 @@ class SimStepper(MotorHAL):
     """uStepper S32 on a NEMA17 model. Parameters (SI, motor side) default to ustepper-model.md 8.3:
 
     holding_torque   N*m at full scale current (IRUN=31)
-    inertia          kg*m^2, rotor plus reflected load
+    inertia          kg*m^2, the rotor and what turns rigidly with it (all of the load when
+                     load_inertia is 0)
     damping          N*m*s/rad viscous; brake_damping is added by the coolbrake (coils shorted)
     coulomb          N*m dry friction (also the stiction limit)
     corner_speed     rad/s, torque roll-off T_max / (1 + |w| / corner_speed)
-    wall_stiffness   N*m/rad, wall_damping N*m*s/rad: a wall as seen from the motor shaft
-    enc_sigma        encoder white noise, counts (1 count = 360/32768 deg)
+    wall_stiffness   N*m/rad, wall_damping N*m*s/rad: the end stops as seen from the motor shaft
+    enc_sigma        encoder white noise, counts (1 count = 360/counts_per_rev deg)
     enc_harmonics    amplitudes (deg) of the 1x and 2x per revolution encoder error, random phases
+    counts_per_rev   encoder resolution: 32768 (TLE5012B, 15 bit) or 4096 (AS5600, 12 bit)
     wiring_sign      +1/-1: field direction per driver ustep with the shaft bit clear
     isr_skip_prob    probability that an ISR tick is skipped (SPI semaphore held by the main thread)
     enc_fail_prob    probability that an encoder sample is dropped (failed SPI transfer)
+    load_inertia     kg*m^2, the driven link reflected to the motor (J_joint / N^2); 0: rigid
+    coupling_stiffness, coupling_damping   N*m/rad, N*m*s/rad of the transmission, motor side
+    backlash         motor degrees of play in the transmission (total)
+    load_damping, load_friction   N*m*s/rad, N*m on the load, motor side
+    load_torque      N*m constant torque on the load (gravity), positive toward negative angles
     """
 
     def __init__(self, clock, seed=1, holding_torque=0.45, inertia=2e-5, damping=2e-4, coulomb=0.005,
                  corner_speed=60.0, brake_damping=0.01, wall_stiffness=200.0, wall_damping=0.02, enc_sigma=0.7,
-                 enc_harmonics=(0.15, 0.10), wiring_sign=1, isr_skip_prob=0.0, enc_fail_prob=0.0):
+                 enc_harmonics=(0.15, 0.10), wiring_sign=1, isr_skip_prob=0.0, enc_fail_prob=0.0,
+                 counts_per_rev=32768, load_inertia=0.0, coupling_stiffness=1.0, coupling_damping=0.0,
+                 backlash=0.0, load_damping=0.0, load_friction=0.0, load_torque=0.0):
         self._clock = clock
         self._rng = rng = _Rng(seed)
         # Physics in usteps: torque (N*m) times _g is an angular acceleration in usteps/s^2.
-        g = (_USTEPS_PER_REV / (2.0 * math.pi)) / inertia
+        g = _USTEPS_PER_RAD / inertia
         self._g = g
         self._acc_full = g * holding_torque
         self._visc = damping / inertia
         self._brake_visc = brake_damping / inertia
         self._fric = g * coulomb
         self._emf = _RAD_PER_USTEP / corner_speed
-        self._kwall = wall_stiffness / inertia
-        self._cwall = wall_damping / inertia
-        self._nwall = 1 + int(_T_ISR * math.sqrt(self._kwall) / _WN_H)
         self._wiring = 1 if wiring_sign >= 0 else -1
+        # The load: with none, the walls and the load torque act on the rotor itself.
+        self._two = load_inertia > 0.0
+        jl = load_inertia if self._two else inertia
+        self._gl = _USTEPS_PER_RAD / jl
+        self._kr = coupling_stiffness / inertia
+        self._cr = coupling_damping / inertia
+        self._kl = coupling_stiffness / jl
+        self._cl = coupling_damping / jl
+        self._gap = 0.5 * backlash * _ANGLE_TO_STEP
+        self._visc_l = load_damping / jl
+        self._fric_l = self._gl * load_friction
+        self._ncpl = (1 + int(_T_ISR * math.sqrt(coupling_stiffness * (1.0 / inertia + 1.0 / jl)) / _WN_H_CPL)
+                      if self._two else 1)
+        self._wall = (wall_stiffness / jl, wall_damping / jl)
+        self._jl = jl
         self._R = 0.0
         self._W = 0.0
+        self._field = 0.0  # usteps the driver has stepped since begin(), without XACTUAL relabels
+        self._L = 0.0
+        self._V = 0.0
         self._F = 0.0
-        self._load = 0.0
+        self._gravity = load_torque
+        self._ext = 0.0
+        self._load = self._gl * load_torque
         self._stops = (-_FAR, _FAR)
         self._obstacles = []
         self._lo = -_FAR
         self._hi = _FAR
+        self._walls()
         # Encoder: magnet offset and harmonic error phases are properties of this board.
-        self._mag = rng.uniform() * _COUNTS_PER_REV
-        cpd = _COUNTS_PER_REV / 360.0
+        self._cpr = float(counts_per_rev)
+        self._cpu = self._cpr / _USTEPS_PER_REV  # counts per ustep
+        self._upc = _USTEPS_PER_REV / self._cpr  # usteps per count (the closed loop's conversion)
+        self._mag = rng.uniform() * self._cpr
+        cpd = self._cpr / 360.0
         self._h1 = enc_harmonics[0] * cpd
         self._h2 = enc_harmonics[1] * cpd
         self._p1 = 2.0 * math.pi * rng.uniform()
@@ -200,13 +247,14 @@ class SimStepper(MotorHAL):
         currents 40 %/40 %, default profile, closed loop scheduled but inactive. A running ramp
         stops at once; the rotor and the field phase (MSCNT) stay where they are."""
         self._powered = True
+        self._field = 0.0
         self._reset_electronics()
 
     # ---- driver/encoder internals ------------------------------------------------------------
     def _raw(self):
         """One encoder reading: unwrapped raw counts (angle + systematic error + noise)."""
         r = self._R * _RAD_PER_USTEP
-        c = (self._R * _COUNTS_PER_USTEP + self._mag + self._h1 * math.sin(r + self._p1)
+        c = (self._R * self._cpu + self._mag + self._h1 * math.sin(r + self._p1)
              + self._h2 * math.sin(2.0 * r + self._p2))
         if self._sigma:
             c += self._sigma * self._rng.gauss()
@@ -262,7 +310,7 @@ class SimStepper(MotorHAL):
 
     # ---- simulation --------------------------------------------------------------------------
     def update(self):
-        """Integrate up to clock.ticks_us(): per ISR period the ramp, the rotor, then the ISR."""
+        """Integrate up to clock.ticks_us(): per ISR period the ramp, the mechanics, then the ISR."""
         now = self._clock.ticks_us()
         t_next = self._t_next
         if now < t_next:
@@ -273,15 +321,22 @@ class SimStepper(MotorHAL):
         sin = math.sin
         floor = math.floor
         T = _T_ISR
-        R, W, F = self._R, self._W, self._F
-        lo, hi, kw, cw = self._lo, self._hi, self._kwall, self._cwall
+        two = self._two
+        R, W, L, V, F = self._R, self._W, self._L, self._V, self._F
+        lo, hi = self._lo, self._hi
+        klo, clo = self._wlo
+        khi, chi = self._whi
         load, fric, emf = self._load, self._fric, self._emf
+        kr, cr, kl, cl, gap = self._kr, self._cr, self._kl, self._cl, self._gap
+        visc_l, fric_l = self._visc_l, self._fric_l
         since = self._since_step
+        field = self._field
         isr_on = self._powered
-        cl, thr, counts = self._cl, self._thr, self._counts
+        cl_on, thr, counts = self._cl, self._thr, self._counts
         pid, home = self._pid, self._home_raw
         skip_p, fail_p, sigma = self._skip_p, self._fail_p, self._sigma
         mag, h1, h2, p1, p2 = self._mag, self._h1, self._h2, self._p1, self._p2
+        cpu, upc = self._cpu, self._upc
         r_enc = None  # rotor position of the cached noise-free encoder reading c_enc
         c_enc = 0.0
         while t_next <= now:
@@ -305,32 +360,84 @@ class SimStepper(MotorHAL):
                 else:
                     va = self._a_hold
                     visc = self._visc_hold
+            field += dx
             vf = self._fdir * dx / T
-            # Rotor: skipped while it and the field rest, held by friction.
-            moving = W != 0.0 or vf != 0.0
+            # Mechanics: skipped while everything and the field rest, held by friction.
+            moving = W != 0.0 or V != 0.0 or vf != 0.0
             if not moving:
-                net = va * sin(_KE * (F - R)) - load
-                if R > hi:
-                    net -= kw * (R - hi)
-                elif R < lo:
-                    net -= kw * (R - lo)
-                moving = not -fric <= net <= fric
+                x = L if two else R
+                wall = khi * (x - hi) if x > hi else (klo * (x - lo) if x < lo else 0.0)
+                net = va * sin(_KE * (F - R))
+                if two:
+                    d = R - L
+                    tw = d - gap if d > gap else (d + gap if d < -gap else 0.0)
+                    net -= kr * tw
+                    net_l = kl * tw - load - wall
+                else:
+                    net -= load + wall
+                    net_l = 0.0
+                moving = not (-fric <= net <= fric and -fric_l <= net_l <= fric_l)
             if moving:
                 n = self._nmin + int(abs(vf - W) * T / _SLIP_PER_SUBSTEP)
-                reach = (abs(W) + abs(vf)) * T + _WALL_MARGIN
-                if (hi - R < reach or R - lo < reach) and n < self._nwall:
-                    n = self._nwall
+                if n < self._ncpl:
+                    n = self._ncpl
+                x, v = (L, V) if two else (R, W)
+                reach = (abs(v) + abs(vf)) * T + _WALL_MARGIN
+                if hi - x < reach and n < self._nhi:
+                    n = self._nhi
+                if x - lo < reach and n < self._nlo:
+                    n = self._nlo
                 h = T / n
+                hh = h * h
                 fh = fric * h
+                flh = fric_l * h
                 df = vf * h
                 for _ in range(n):
-                    a = va * sin(_KE * (F - R)) / (1.0 + abs(W) * emf) - visc * W - load
-                    # Walls push back like a spring, damped only while compressed (never pull).
-                    if R > hi:
-                        a -= kw * (R - hi) + (cw * W if W > 0.0 else 0.0)
-                    elif R < lo:
-                        a -= kw * (R - lo) + (cw * W if W < 0.0 else 0.0)
-                    W += a * h
+                    ar = va * sin(_KE * (F - R)) / (1.0 + abs(W) * emf)
+                    if two:
+                        # Implicit coupling (when engaged), viscous and wall terms: a 2x2 solve.
+                        a11 = 1.0 + h * visc
+                        a22 = 1.0 + h * visc_l
+                        a12 = a21 = 0.0
+                        b1 = W + h * ar
+                        b2 = V - h * load
+                        d = R - L
+                        if d > gap or d < -gap:
+                            tw = d - gap if d > gap else d + gap
+                            sr = hh * kr + h * cr
+                            sl = hh * kl + h * cl
+                            a11 += sr
+                            a22 += sl
+                            a12 = -sr
+                            a21 = -sl
+                            b1 -= h * kr * tw
+                            b2 += h * kl * tw
+                        if L > hi:
+                            b2 -= h * khi * (L - hi)
+                            a22 += hh * khi + (h * chi if V > 0.0 else 0.0)
+                        elif L < lo:
+                            b2 -= h * klo * (L - lo)
+                            a22 += hh * klo + (h * clo if V < 0.0 else 0.0)
+                        det = a11 * a22 - a12 * a21
+                        W = (b1 * a22 - a12 * b2) / det
+                        V = (a11 * b2 - a21 * b1) / det
+                        if V > flh:
+                            V -= flh
+                        elif V < -flh:
+                            V += flh
+                        else:
+                            V = 0.0
+                    else:
+                        # Implicit viscous and wall terms on the rotor alone.
+                        b1 = W + h * (ar - load)
+                        a11 = 1.0 + h * visc
+                        if R > hi:
+                            b1 -= h * khi * (R - hi)
+                            a11 += hh * khi + (h * chi if W > 0.0 else 0.0)
+                        elif R < lo:
+                            b1 -= h * klo * (R - lo)
+                            a11 += hh * klo + (h * clo if W < 0.0 else 0.0)
+                        W = b1 / a11
                     if W > fh:
                         W -= fh
                     elif W < -fh:
@@ -338,7 +445,10 @@ class SimStepper(MotorHAL):
                     else:
                         W = 0.0
                     R += W * h
+                    L += V * h
                     F += df
+                if not two:
+                    L, V = R, W
             # Library ISR: encoder sample, velocity estimator, closed-loop re-synchronisation.
             if not isr_on or (skip_p and rng.uniform() < skip_p):
                 continue
@@ -346,22 +456,23 @@ class SimStepper(MotorHAL):
                 if R != r_enc:
                     r_enc = R
                     r = R * _RAD_PER_USTEP
-                    c_enc = R * _COUNTS_PER_USTEP + mag + h1 * sin(r + p1) + h2 * sin(2.0 * r + p2)
+                    c_enc = R * cpu + mag + h1 * sin(r + p1) + h2 * sin(2.0 * r + p2)
                 c = c_enc
                 if sigma:
                     c += sigma * rng.gauss()
                 counts = floor(c) - home
                 est.update(counts)
-            if cl:
-                meas = int(1.5625 * counts)
+            if cl_on:
+                meas = int(upc * counts)
                 pid = floor(ramp.x + 0.5) - meas
                 if pid >= thr or -pid >= thr:
                     ramp.x = float(meas)
                     if ramp.mode == POSITIONING:
                         ramp.xtarget = self._drv_xtarget
         self._t_next = t_next
-        self._R, self._W, self._F = R, W, F
+        self._R, self._W, self._L, self._V, self._F = R, W, L, V, F
         self._since_step = since
+        self._field = field
         self._counts, self._pid = counts, pid
 
     # ---- MotorHAL ----------------------------------------------------------------------------
@@ -474,10 +585,10 @@ class SimStepper(MotorHAL):
         self._fdir = -self._wiring if inverted else self._wiring
 
     def angle_moved(self):
-        return self._counts * (360.0 / _COUNTS_PER_REV)
+        return self._counts * (360.0 / self._cpr)
 
     def encoder_rpm(self):
-        return self._est.value * (60.0 / _COUNTS_PER_REV)
+        return self._est.value * (60.0 / self._cpr)
 
     def driver_rpm(self):
         """True ramp speed (the library's getDriverRPM under-reports by 1.677, not modelled)."""
@@ -489,6 +600,11 @@ class SimStepper(MotorHAL):
     def position_reached(self):
         return self._ramp.position_reached()
 
+    def field_position(self):
+        """Usteps the driver has advanced the coil field since begin(): XACTUAL without the closed
+        loop's relabels (set_home() does not reset it)."""
+        return int(math.floor(self._field + 0.5))
+
     # ---- simulator hooks ---------------------------------------------------------------------
     def driver_position(self):
         return self._ramp.xactual()
@@ -496,34 +612,57 @@ class SimStepper(MotorHAL):
     def rotor_angle(self):
         return self._R / _ANGLE_TO_STEP
 
+    def slipped_periods(self):
+        """Whole electrical periods (4 full steps) the rotor has fallen behind or run ahead of the
+        coil field since construction: nonzero once the motor has lost steps."""
+        return int(math.floor((self._F - self._R) / 1024.0 + 0.5))
+
+    def load_angle(self):
+        return (self._L if self._two else self._R) / _ANGLE_TO_STEP
+
     def set_end_stops(self, low_deg=None, high_deg=None):
         self._stops = (-_FAR if low_deg is None else low_deg * _ANGLE_TO_STEP,
                        _FAR if high_deg is None else high_deg * _ANGLE_TO_STEP)
         self._walls()
 
-    def add_obstacle(self, angle_deg, direction):
-        self._obstacles.append((angle_deg * _ANGLE_TO_STEP, 1 if direction > 0 else -1))
-        self._walls()
+    def add_obstacle(self, angle_deg, direction, stiffness=None, damping=None):
+        self._add(angle_deg * _ANGLE_TO_STEP, direction, stiffness, damping)
 
     def clear_obstacles(self):
         self._obstacles = []
         self._walls()
 
-    def block(self):
-        w = self._W
-        if abs(w) < 1.0:
-            w = self._fdir * self._ramp.v
-        self._obstacles.append((self._R, -1 if w < 0.0 else 1))
-        self._walls()
+    def block(self, stiffness=None, damping=None):
+        x, v = (self._L, self._V) if self._two else (self._R, self._W)
+        if abs(v) < 1.0:
+            v = self._fdir * self._ramp.v
+        self._add(x, -1 if v < 0.0 else 1, stiffness, damping)
 
     def set_load_torque(self, nm):
-        self._load = nm * self._g
+        self._ext = nm
+        self._load = self._gl * (self._gravity + nm)
+
+    def _add(self, at, direction, stiffness, damping):
+        k, c = self._wall
+        if stiffness is not None:
+            k = stiffness / self._jl
+        if damping is not None:
+            c = damping / self._jl
+        self._obstacles.append((at, 1 if direction > 0 else -1, k, c))
+        self._walls()
 
     def _walls(self):
+        """The tightest wall on each side, with its stiffness and damping (load accel units)."""
         lo, hi = self._stops
-        for at, direction in self._obstacles:
+        wlo = whi = self._wall
+        for at, direction, k, c in self._obstacles:
             if direction > 0:
-                hi = min(hi, at)
-            else:
-                lo = max(lo, at)
+                if at < hi:
+                    hi, whi = at, (k, c)
+            elif at > lo:
+                lo, wlo = at, (k, c)
         self._lo, self._hi = lo, hi
+        self._wlo, self._whi = wlo, whi
+        # Implicit walls are stable at any stiffness; sub-steps only resolve the impact.
+        self._nlo = min(_MAX_WALL_SUBSTEPS, 1 + int(_T_ISR * math.sqrt(wlo[0]) / _WN_H_CPL))
+        self._nhi = min(_MAX_WALL_SUBSTEPS, 1 + int(_T_ISR * math.sqrt(whi[0]) / _WN_H_CPL))

@@ -16,6 +16,7 @@ from typing import Any, Callable, Sequence
 from ..firmware import config as firmware_config
 from ..firmware.sim.bus import SimJointBus
 from ..firmware.sim.clock import VirtualClock
+from ..firmware.sim import mechanics
 from ..firmware.sim.joint import SimJoint
 from ..firmware.sim.stepper import SimStepper
 from .base import Bus
@@ -27,8 +28,10 @@ log = logging.getLogger("bioscara.sim")
 class SimJointSpec:
     """Where a simulated joint sits: its firmware identity and its mechanics in joint units.
 
-    The rotor starts at `start`; walls stand at the joint limits `min` and `max` (the end stops
+    The link starts at `start`; walls stand at the joint limits `min` and `max` (the end stops
     homing drives into), mapped to motor angle through `reduction` (rad of motor per joint unit).
+    The mechanics (inertia, transmission, backlash, gravity, encoder) are the arm's
+    (firmware.sim.mechanics) for `payload_kg`, with `noise` "nominal" or "harsh".
     """
 
     firmware_joint: str  # J1..J4
@@ -38,6 +41,8 @@ class SimJointSpec:
     max: float
     start: float
     deadman_ms: int = 50  # the joint firmware's own setting (its per-joint config)
+    payload_kg: float = 0.0
+    noise: str = "nominal"
 
     def motor_degrees(self, position: float) -> float:
         return math.degrees(self.reduction * (position - self.start))
@@ -47,7 +52,8 @@ def build_joint(spec: SimJointSpec, clock: VirtualClock, seed: int, port: str,
                 write: Callable[[str], None]) -> SimJoint:
     """The simulated joint of `spec`: its firmware on a stepper walled in at the joint limits,
     logging its console lines through `write`."""
-    stepper = SimStepper(clock, seed=seed)
+    stepper = SimStepper(clock, seed=seed, **mechanics.stepper_kwargs(spec.firmware_joint, spec.payload_kg,
+                                                                       spec.noise))
     low, high = sorted((spec.motor_degrees(spec.min), spec.motor_degrees(spec.max)))
     stepper.set_end_stops(low, high)
     cfg = firmware_config.parse({"joint": spec.firmware_joint, "address": spec.address,
@@ -82,9 +88,10 @@ class SimBus(Bus):
         return joint
 
     def joint_position(self, address: int) -> float:
-        """True joint position (joint units) from the simulated rotor angle."""
+        """True joint position (joint units) from the simulated link (not the rotor: the
+        transmission's compliance and backlash lie between them)."""
         spec = self.specs[address]
-        return spec.start + math.radians(self.joint(address).stepper.rotor_angle()) / spec.reduction
+        return spec.start + math.radians(self.joint(address).stepper.load_angle()) / spec.reduction
 
     def _catch_up(self) -> None:
         if self.realtime:

@@ -1,0 +1,58 @@
+"""What the joint chip costs, for the simulated bus: clock stretching per transaction and the main
+loop's period, from the cost table `make bench-chip` measures on the emulated Pico
+(chip_costs.json next to this file; format in README, "The simulated arm").
+
+    costs = ChipCosts.load()          # the repository's table
+    costs.scl_held_us(reg, command)   # us the chip holds SCL for one transaction on register reg
+    costs.mem_held_us                 # ... for one transaction on the v2 memory map (served in C)
+    costs.loop_us                     # main-loop period, us
+    costs.gc_every, costs.gc_pause_us # every gc_every-th iteration ends gc_pause_us late
+    FREE                              # no costs: 1 ms loop, no stretching (unit tests of logic)
+
+MicroPython-compatible like the rest of joint.sim.
+"""
+
+import json
+
+from .. import protocol
+
+TABLE = "chip_costs.json"
+
+
+class ChipCosts:
+    def __init__(self, data):
+        held = data.get("scl_held_us", {})
+        default = data.get("scl_held_us_default", {})
+        self.source = data.get("source", "")
+        self._read = float(default.get("read", 0.0))
+        self._command = float(default.get("command", 0.0))
+        self.mem_held_us = float(data.get("scl_held_us_mem", 0.0))
+        self._held = {}
+        for name in held:
+            self._held[protocol.register(name).addr] = float(held[name])
+        hz = float(data.get("loop_hz", 1000.0))
+        if not hz > 0.0:
+            raise ValueError("%s: loop_hz must be positive" % TABLE)
+        self.loop_us = 1e6 / hz
+        self.gc_every = int(data.get("gc_every", 0))
+        self.gc_pause_us = float(data.get("gc_pause_us", 0.0))
+
+    @classmethod
+    def load(cls, path=None):
+        if path is None:
+            path = __file__.rsplit("/", 1)[0] + "/" + TABLE if "/" in __file__ else TABLE
+        with open(path) as f:
+            return cls(json.load(f))
+
+    def scl_held_us(self, reg, command):
+        """Clock stretching of one transaction addressed to register `reg` (None: an address-only
+        probe, which the IRQ path answers without a handler); `command`: it carried a payload."""
+        if reg is None:
+            return 0.0
+        held = self._held.get(reg)
+        if held is not None:
+            return held
+        return self._command if command else self._read
+
+
+FREE = ChipCosts({"loop_hz": 1000.0})

@@ -1,0 +1,132 @@
+"""Deadman per mode whatever the flags say, refused frames, homing limits, the tracking detector."""
+
+from joint import protocol as P
+from joint.tracking import TrackingDetector
+from harness import Rig
+
+NOTENABLED, BUSY, NOTHOMED = P.FLAG_NOTENABLED, P.FLAG_BUSY, P.FLAG_NOTHOMED
+
+# Motion states a host can leave a joint in, and frames that change its flags but not its motion.
+STATES = (
+    ("velocity", lambda rig: rig.command("SETRPM", 60.0)),
+    ("positioning", lambda rig: (setattr(rig.motor, "reached", False), rig.command("MOVETOANGLE", 3600.0))),
+    ("homing", lambda rig: rig.command("HOME", 1, 10, 30, 15)),
+    ("orientation check", lambda rig: (setattr(rig.motor, "reached", False), rig.command("CHECKORIENTATION", 5.0))),
+)
+
+
+def _sample_values(reg):
+    """A valid payload for every field of a writable register (its lowest valid value; a current
+    of 0 and the like: the frames that change flags without stopping anything). WATCHDOG 0 would
+    hand the joint back to the original deadman, which a host asks for on purpose: 50 here."""
+    if reg.addr == P.WATCHDOG:
+        return (50,)
+    values = []
+    for field in reg.write:
+        if field.kind == P.F32:
+            values.append(max(field.lo, 1.0))
+        elif field.kind == P.I32:
+            values.append(100)
+        else:
+            values.append(field.lo)
+    return tuple(values)
+
+
+# Every writable register of the spec, once each, in every motion state.
+FLAG_CHANGES = (None,) + tuple((reg.name,) + _sample_values(reg) for reg in P.REGISTERS if reg.writable)
+
+
+def _moving(rig, state):
+    rig.command("SETUP", 20, 20, 0, 0)
+    rig.command("WATCHDOG", 50)
+    rig.run_ms(2)
+    rig.motor.ramp_rpm = 60.0  # the driver turns
+    state(rig)
+    for _ in range(60):  # the host polls while the motion gets going
+        rig.run_ms(10)
+        rig.read("PING")
+
+
+def test_every_motion_state_stops_on_host_silence_whatever_the_flags_say():
+    for name, state in STATES:
+        for change in FLAG_CHANGES:
+            rig = Rig()
+            _moving(rig, state)
+            if change is not None:
+                rig.command(*change)
+            rig.motor.calls = []
+            rig.run_ms(49)
+            assert not any("deadman" in line for line in rig.lines), "%s/%r: deadman early" % (name, change)
+            rig.run_ms(2)
+            assert ("stop", False) in rig.motor.calls, "%s after %r: no stop on silence" % (name, change)
+            assert rig.core.flags & NOTENABLED and not rig.core.flags & BUSY
+            decel = rig.core.cfg.stop_deceleration
+            stop = rig.motor.calls.index(("stop", False))
+            assert rig.motor.calls[stop - 2:stop] == [("set_max_acceleration", decel),
+                                                      ("set_max_deceleration", decel)], \
+                "the quick stop, not the host's slow ramp"
+
+
+def test_a_fresh_joint_keeps_the_original_deadman_velocity_only():
+    rig = Rig()
+    rig.command("SETUP", 20, 20, 0, 0)
+    rig.motor.reached = False
+    rig.command("MOVETOANGLE", 3600.0)  # an original host polls at 10 Hz during position moves
+    rig.run_ms(200)
+    assert not rig.core.flags & NOTENABLED
+    rig.command("SETRPM", 60.0)
+    rig.command("SETCURRENT", 0)  # NOTENABLED, still turning: the deadman does not care
+    rig.motor.calls = []
+    rig.run_ms(52)
+    assert ("stop", False) in rig.motor.calls
+
+
+def test_refused_motion_carries_error_and_a_reason():
+    rig = Rig()
+    flags = rig.command("MOVETOANGLE", 10.0)
+    assert flags & P.FLAG_ERROR and rig.read("LASTERROR")[0][0] == P.REJECT_NOT_ENABLED
+    rig.command("SETUP", 20, 20, 0, 0)
+    rig.core.flags |= P.FLAG_STALL
+    assert rig.command("SETRPM", 5.0) & P.FLAG_ERROR
+    assert rig.read("LASTERROR")[0][0] == P.REJECT_STALLED
+    assert not rig.command("SETRPM", 0.0) & P.FLAG_ERROR, "0 rpm always goes through"
+
+
+def test_a_homing_sensitivity_within_the_noise_floor_is_refused():
+    rig = Rig()
+    rig.command("SETUP", 20, 20, 0, 0)
+    flags = rig.command("HOME", 1, 10, 15, 15)  # control threshold 15 + 10 rpm x 0.55
+    assert flags & P.FLAG_ERROR and not flags & BUSY
+    assert rig.read("LASTERROR")[0][0] == P.REJECT_HOMING_SENSITIVITY
+    assert not rig.command("HOME", 1, 10, 30, 15) & P.FLAG_ERROR
+
+
+def test_a_homing_that_never_finds_its_stop_ends_not_homed():
+    rig = Rig()
+    rig.core.homing._max_travel = 51200  # one turn
+    rig.command("SETUP", 20, 20, 0, 0)
+    rig.command("HOME", 1, 10, 30, 15)
+    rig.run_ms(600)
+    for _ in range(100):  # encoder and field travel together: no end stop
+        rig.motor.field += 1000
+        rig.motor.angle += 1000 / 142.2222
+        rig.run_ms(5)
+    assert not rig.core.flags & BUSY and rig.core.flags & NOTHOMED
+    assert ("set_home",) not in rig.motor.calls
+    assert any("travel limit" in line for line in rig.lines)
+
+
+def test_tracking_detector_follows_free_motion_and_catches_a_blocked_rotor():
+    det = TrackingDetector(100, 2, 20, 2, 5)
+    field = encoder = 0
+    for k in range(200):  # free motion with a load angle wobble and reversals
+        step = 400 if (k // 50) % 2 == 0 else -400
+        field += step
+        encoder = field - (30 if k % 3 else -30) * (1 if step > 0 else -1)
+        assert not det.update(field & 0x3FFFFFFF, encoder), k
+    stalled_at = None
+    for k in range(20):  # the rotor stops, the field runs on
+        field += 400
+        if det.update(field & 0x3FFFFFFF, encoder) and stalled_at is None:
+            stalled_at = k
+    assert stalled_at is not None and stalled_at <= 4

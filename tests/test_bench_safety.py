@@ -1,0 +1,77 @@
+"""The reduced make bench-safety matrix: the real firmware on the simulated arm's harsh corners, and
+the bench's own measurements checked against cases whose outcome is known."""
+
+from __future__ import annotations
+
+import math
+import pathlib
+import sys
+
+import pytest
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "bench"))
+
+import safety as S  # noqa: E402
+from bioscara.firmware.sim import mechanics as M  # noqa: E402
+
+ISSUE_11_NAMES = ["collision_detect_rate"] + [f"collision_detect_rate.j{i}" for i in range(1, 5)] + [
+    "collision_latency_ms_median", "collision_latency_ms_max", "false_stalls"]
+SHARED_NAMES = ["safety.homing_success_rate", "safety.homing_false_homed", "safety.homed_error_deg_max",
+                "safety.deadman_escapes", "safety.deadman_stop_start_ms_max"]
+
+
+@pytest.fixture(scope="module")
+def reduced() -> tuple[list, list[str]]:
+    available = [d for d in S.DETECTORS if S._available(d)]
+    return S.run_all(S.matrix(full=False, detectors=available)), available
+
+
+def _result(results: list, scenario: object) -> dict:
+    return next(r for s, r in results if s == scenario)
+
+
+def test_every_figure_is_printed_for_both_detectors(reduced) -> None:
+    results, available = reduced
+    figures = dict(S.figures(results, available))
+    for name in ISSUE_11_NAMES:
+        assert "safety.original." + name in figures and "safety." + name in figures
+    for name in SHARED_NAMES:
+        assert name in figures and not math.isnan(figures[name])
+    for name, value in figures.items():
+        if "rate" in name and not math.isnan(value):
+            assert 0.0 <= value <= 1.0, name
+    if "tracking" not in available:
+        assert math.isnan(figures["safety.collision_detect_rate"]), "no new detector: no figure"
+
+
+def test_a_collision_where_the_original_detector_works_is_measured_from_contact(reduced) -> None:
+    results, _ = reduced
+    r = _result(results, S.Collision("J1", 120.0, "rigid", False, "nominal", "original"))
+    assert r["detected"] and 0.0 < r["latency_ms"] < 2500.0, r
+
+
+def test_without_stall_detection_the_collision_is_not_reported() -> None:
+    r = S.collision(S.Collision("J1", 120.0, "rigid", False, "nominal", "original", stall_threshold=0))
+    assert not r["detected"] and not r["false_stall"], r
+
+
+def test_homing_into_a_rigid_stop_reports_the_position_within_the_mechanical_bound(reduced) -> None:
+    results, _ = reduced
+    r = _result(results, S.Homing("J1", False, "nominal", "rigid"))
+    assert r["success"] and not r["false_homed"]
+    assert r["error_deg"] <= M.homing_error_bound_deg("J1", S.CONFIG["J1"]["home"][2])
+
+
+def test_the_velocity_deadman_stops_within_one_chip_loop_of_the_timeout(reduced) -> None:
+    results, _ = reduced
+    r = _result(results, S.Deadman("J1", "velocity", "original"))
+    assert not r["escape"]
+    chip = S.Rig("J4").bus.chip
+    assert 50.0 <= r["stop_start_ms"] <= 51.0 + (chip.loop_us + chip.gc_pause_us) / 1000.0, r
+
+
+def test_an_escape_is_counted_when_the_rotor_keeps_turning() -> None:
+    figures = dict(S.figures([(S.Deadman("J1", "setcurrent0", "ours"), {"escape": True, "stop_start_ms": S.NAN}),
+                              (S.Deadman("J1", "velocity", "ours"), {"escape": False, "stop_start_ms": 52.0})],
+                             ["original"]))
+    assert figures["safety.deadman_escapes"] == 1 and figures["safety.deadman_stop_start_ms_max"] == 52.0
