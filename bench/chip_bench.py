@@ -25,11 +25,14 @@ from chip import fsimage  # noqa: E402
 from chip.board import EmulatedPico  # noqa: E402
 from chip.joint_devices import JOINT_DEVICES_PLUGIN  # noqa: E402
 from chip.paths import missing  # noqa: E402
+from chip.i2c import joint_bus_plugin  # noqa: E402
+from chip_bus import host_cycle, joint_bus_figures  # noqa: E402
 
 JOINT = "J1"
 LOOP_MS = 5000  # the measured main loop, emulated milliseconds
-JOINT_PLUGINS: list[dict[str, Any]] = [JOINT_DEVICES_PLUGIN]  # TMC2209, AS5600, rotor on its pins
-BEFORE_LOOP: list[Callable[[EmulatedPico], None]] = []
+# TMC2209, AS5600, rotor on its pins; the emulated I2C controller on its I2C0 (the joint bus)
+JOINT_PLUGINS: list[dict[str, Any]] = [JOINT_DEVICES_PLUGIN, joint_bus_plugin(khz=400)]
+BEFORE_LOOP: list[Callable[[EmulatedPico], None]] = [host_cycle]  # the host cycling at 100 Hz
 
 
 def bench_image(directory: pathlib.Path) -> pathlib.Path:
@@ -75,7 +78,7 @@ def parse_figures(out: str) -> dict[str, float]:
     return figures
 
 
-PRODUCERS: list[Callable[[], dict[str, float]]] = [main_loop_figures]
+PRODUCERS: list[Callable[[], dict[str, float]]] = [main_loop_figures, joint_bus_figures]
 
 
 def main() -> int:

@@ -88,6 +88,13 @@ def enable(bus: JointBusClient) -> bool:
     return not flags & P.FLAG_NOTENABLED
 
 
+def host_cycle(pico: EmulatedPico, seconds: float = 30.0) -> None:
+    """The original host cycling at 100 Hz at 400 kHz in the background (for the main-loop run):
+    the 3-transaction cycle; NAKed while the joint is not on the bus."""
+    cycle = [(ADDRESS, *legacy_transaction(n)) for n in ("ANGLEMOVED", "GETENCODERRPM", "SETRPM")]
+    JointBusClient(pico).start_cycle(cycle, period_us=CYCLE_PERIOD_US, repeat=round(seconds * 1e6 / CYCLE_PERIOD_US))
+
+
 def bus_figures(image: Any, plugins: Iterable[dict[str, Any]] = ()) -> dict[str, float]:
     figures: dict[str, float] = {}
     with EmulatedPico(image, plugins=[*plugins, joint_bus_plugin(khz=400)]) as pico:
@@ -110,24 +117,30 @@ def bus_figures(image: Any, plugins: Iterable[dict[str, Any]] = ()) -> dict[str,
     return figures
 
 
-def main() -> int:
-    """The figures alone (`make bench-chip` runs them with the others), with the device fakes."""
+def joint_bus_figures() -> dict[str, float]:
+    """The producer for bench/chip_bench.py: J1 as deployed, with its device fakes."""
     import tempfile
     from pathlib import Path
 
     from chip import fsimage
     from chip.joint_devices import JOINT_DEVICES_PLUGIN
+
+    with tempfile.TemporaryDirectory() as directory:
+        image = Path(directory) / "J1.img"
+        fsimage.joint_image("J1", image)
+        return bus_figures(image, [JOINT_DEVICES_PLUGIN])
+
+
+def main() -> int:
+    """These figures alone (`make bench-chip` prints them with the others)."""
     from chip.paths import missing
 
     problem = missing()
     if problem:
         print(f"chip bus figures skipped: {problem}", file=sys.stderr)
         return 0
-    with tempfile.TemporaryDirectory() as directory:
-        image = Path(directory) / "J1.img"
-        fsimage.joint_image("J1", image)
-        for name, value in bus_figures(image, [JOINT_DEVICES_PLUGIN]).items():
-            print(f"{name} {value:g}")
+    for name, value in joint_bus_figures().items():
+        print(f"{name} {value:g}")
     return 0
 
 

@@ -86,6 +86,17 @@ class JointBusClient:
                                   periodNs=round(period_us * 1e3))
         return [Transaction.from_reply(r) for r in reply["results"]]
 
+    def start_cycle(self, items: Iterable[tuple[int, bytes | None, int]], *, period_us: float,
+                    repeat: int) -> None:
+        """Like `schedule`, but returns at once: a host cycling in the background; `state()`
+        counts its transactions (`cycling`: ended, failed)."""
+        specs = [self._spec(a, w, r, 0.0) for a, w, r in items]
+        self.pico.request(f"{self.name}.cycle", items=specs, repeat=repeat, periodNs=round(period_us * 1e3))
+
+    def state(self) -> dict[str, Any]:
+        """The controller's and the target's state (queue, SCL holds, FIFO levels, interrupts)."""
+        return self.pico.request(f"{self.name}.state")
+
     def set_khz(self, khz: int) -> None:
         self.pico.request(f"{self.name}.config", khz=khz)
 

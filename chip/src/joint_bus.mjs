@@ -7,6 +7,8 @@
 //   i2c.schedule {items: [{addr, write, read, gapNs?}], repeat?: k, periodNs?}
 //        -> {results: [...]}: the items back to back (each after its gapNs), k times; with
 //           periodNs each repetition starts periodNs after the previous one started (host cycling)
+//   i2c.cycle {items, periodNs, repeat}  starts such a schedule and returns at once (a host
+//        cycling in the background); i2c.state then reports how many transactions ended/failed
 //   i2c.config {khz}                                          -> the bus clock
 // A result: {addr, write, read, ack, data, startNs, endNs, totalNs, heldNs, wireNs, bits, irqNs}
 // (times in emulated ns; heldNs is SCL held low by the target; irqNs the target CPU's time in its
@@ -22,6 +24,7 @@ export class JointBus {
     this.target = board.rp2040.i2c[i2c];
     this.meter = new IrqMeter(board.rp2040, 23 + i2c);
     this.controller = new I2CController(board.clock, { khz }).attach(this.target).meterIrq(this.meter);
+    this.cycling = null; // counts of a background host cycle (i2c.cycle)
   }
 
   set khz(value) {
@@ -41,7 +44,7 @@ export class JointBus {
       holdingScl: t.holdingScl, readHold: !!t.readHold, rxHold: !!t.rxHold, txFlushed: t.txFlushed,
       rxLevel: t.rxFIFO.itemCount, txLevel: t.txFIFO.itemCount, raw: t.intRaw, mask: t.intEnable,
       enabled: t.enable & 1, con: t.control, irqEntries: this.meter.entries, irqIdle: this.meter.idle,
-      irqStack: this.meter.t.stack.slice(),
+      irqStack: this.meter.t.stack.slice(), cycling: this.cycling,
     };
   }
 
@@ -59,7 +62,13 @@ export class JointBus {
     for (let k = 0; k < repeat; k++) {
       items.forEach((item, i) => {
         const atNs = periodNs && i === 0 ? t0 + k * periodNs : 0;
-        jobs.push(new Promise((resolve) => this.controller.transfer({ ...item, atNs }, resolve)));
+        jobs.push(new Promise((resolve) => this.controller.transfer({ ...item, atNs }, (r) => {
+          if (this.cycling) {
+            this.cycling.ended++;
+            if (!r.ack) this.cycling.failed++;
+          }
+          resolve(r);
+        })));
       });
     }
     return Promise.all(jobs);
@@ -79,6 +88,10 @@ export function attach(world, boards, options = {}) {
           return bus.transfer(msg);
         case 'schedule':
           return { results: await bus.schedule(msg) };
+        case 'cycle':
+          bus.cycling = { ended: 0, failed: 0 };
+          bus.schedule(msg).then(() => {});
+          return { started: true };
         case 'state':
           return bus.state();
         case 'config':

@@ -4,8 +4,8 @@ Event handling (see reference/i2c-facts.md section 1.4):
 
 * ADDR_MATCH_WRITE starts a frame; WRITE_REQ drains received bytes (one per event on most ports,
   a FIFO batch on rp2) into a preallocated frame buffer; END_WRITE (at STOP or at the repeated
-  START) hands the frame to the core, which validates and queues it. A write with no read is a
-  complete command.
+  START) takes what is left in the FIFO and hands the frame to the core, which validates and
+  queues it. A write with no read is a complete command.
 * ADDR_MATCH_READ asks the core for the reply (payload + flags, packed in advance by the main loop);
   a read with no register written first repeats the last selected register. READ_REQ feeds the
   reply: `write()` gets the rest of the reply at once, and the port takes what it can (one byte on
@@ -77,7 +77,9 @@ class I2CTargetAdapter:
         events = self._events.flags()
         if events & IRQ_ADDR_MATCH_WRITE:
             self._frame_len = 0
-        if events & IRQ_WRITE_REQ:
+        # END_WRITE drains too: rp2 handles a repeated START before the RX data that came with it,
+        # so the last bytes of a command can still be in the FIFO (chip/README.md).
+        if events & (IRQ_WRITE_REQ | IRQ_END_WRITE):
             chunk = self._chunk
             frame = self._frame
             length = self._frame_len

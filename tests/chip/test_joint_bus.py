@@ -15,7 +15,7 @@ import pytest
 
 from chip.board import EmulatedPico
 from chip.i2c import ChipBus, JointBusClient, joint_bus_plugin
-from chip.testing import joint_image, requires_chip  # noqa: F401 (a fixture)
+from chip.testing import joint_image, requires_chip  # noqa: F401 (joint_image is a fixture)
 from harness import Rig
 from joint import protocol as P
 
@@ -96,6 +96,8 @@ def test_every_register_reads_as_in_the_simulator(joint_bus: JointBusClient) -> 
 
 
 def test_every_command_is_answered_as_in_the_simulator(joint_bus: JointBusClient) -> None:
+    # 5-byte commands at 400 kHz: the last byte and the repeated START reach the rp2 driver in one
+    # interrupt, START_DET first; END_WRITE must take that byte from the FIFO (chip/README.md).
     assert_same_replies(joint_bus, commands())
 
 
