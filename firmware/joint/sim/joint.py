@@ -4,6 +4,7 @@ from .. import config as joint_config
 from ..core import JointController
 from ..i2c_target import I2CTargetAdapter
 from ..log import INFO, Logger
+from .fixed_hal import FixedPointHAL
 from .i2c_target import FakeI2CTarget
 
 
@@ -32,7 +33,7 @@ class SimJoint:
     def power_cycle(self):
         self.target.deinit()
         self.adapter = None
-        self.core = JointController(self.stepper, self.clock, self.cfg, self.log)
+        self.core = JointController(FixedPointHAL(self.stepper), self.clock, self.cfg, self.log)
         self.boots += 1
 
     @property
