@@ -443,7 +443,9 @@ def figures(results: list[tuple], available: Iterable[str]) -> list[tuple[str, f
             for name in ("collision_detect_rate", "collision_detect_rate.j1", "collision_detect_rate.j2",
                          "collision_detect_rate.j3", "collision_detect_rate.j4", "collision_detect_rate.rigid",
                          "collision_detect_rate.soft", "collision_latency_ms_median",
-                         "collision_latency_ms_max", "false_stalls", "lost_steps_unobstructed"):
+                         "collision_latency_ms_max", "collision_latency_ms_median.rigid",
+                         "collision_latency_ms_max.rigid", "collision_latency_ms_median.soft",
+                         "collision_latency_ms_max.soft", "false_stalls", "lost_steps_unobstructed"):
                 out.append((prefix + name, NAN))
             continue
         out.append((prefix + "collision_detect_rate", sum(r["detected"] for _, r in col) / len(col)))
@@ -455,9 +457,10 @@ def figures(results: list[tuple], available: Iterable[str]) -> list[tuple[str, f
             mine = [r for s, r in col if s.stop == stop]
             out.append((prefix + "collision_detect_rate." + stop,
                         sum(r["detected"] for r in mine) / len(mine) if mine else NAN))
-        lat = [r["latency_ms"] for _, r in col if r["detected"]]
-        out.append((prefix + "collision_latency_ms_median", statistics.median(lat) if lat else NAN))
-        out.append((prefix + "collision_latency_ms_max", max(lat) if lat else NAN))
+        for suffix, kinds in (("", ("rigid", "soft")), (".rigid", ("rigid",)), (".soft", ("soft",))):
+            lat = [r["latency_ms"] for s, r in col if r["detected"] and s.stop in kinds]
+            out.append((prefix + "collision_latency_ms_median" + suffix, statistics.median(lat) if lat else NAN))
+            out.append((prefix + "collision_latency_ms_max" + suffix, max(lat) if lat else NAN))
         out.append((prefix + "false_stalls", sum(r["false_stalls"] for _, r in free)
                     + sum(r["false_stall"] for _, r in col)))
         # Not a name of issue 11: moves at the shipped limits where the motor itself lost steps.

@@ -271,6 +271,16 @@ def test_sim_start_for_a_joint_that_is_not_configured(tmp_path: Path) -> None:
     assert only_problem(path) == f"{path}: unknown joint sim.start.j2 (allowed: j1)"
 
 
+def test_sim_payload_and_noise_shape_the_simulated_arm(tmp_path: Path) -> None:
+    from bioscara.hardware import open_arm_bus
+    path = edited(tmp_path, "payload_kg = 0.0", "payload_kg = 1.0")
+    heavy, bare = open_arm_bus(load_config(str(path))), open_arm_bus(load_config())
+    # J2 carries the payload's weight through its screw: more torque on the motor (sign: down).
+    assert heavy.joint(0x12).stepper._gravity < bare.joint(0x12).stepper._gravity < 0.0
+    path = edited(tmp_path, 'noise = "nominal"', 'noise = "loud"')
+    assert only_problem(path) == f'{path}: sim.noise = "loud" must be one of "nominal", "harsh"'
+
+
 def test_bad_toml(tmp_path: Path) -> None:
     path = write(tmp_path, "[bus]\nurl = 'sim:'\nspeed_hz = = 3\n")
     message = only_problem(path)

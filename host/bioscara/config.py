@@ -99,6 +99,8 @@ class SimConfig:
 
     seed: int = 1
     realtime: bool = False
+    payload_kg: float = 0.0  # carried by the gripper: the simulated arm's inertia (and J2's weight)
+    noise: str = "nominal"  # encoder and ISR corner of the simulated arm: "nominal" or "harsh"
     start: dict[str, float] = field(default_factory=dict)  # joint units, one entry per configured joint
 
 
@@ -253,6 +255,8 @@ _GRIPPER_KEYS = {
 _SIM_KEYS = {
     "seed": _Key(int, default=1),
     "realtime": _Key(bool, default=False),
+    "payload_kg": _Key(float, lo=0.0, hi=5.0, default=0.0),
+    "noise": _Key(str, choices=("nominal", "harsh"), default="nominal"),
 }
 
 

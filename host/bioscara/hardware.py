@@ -13,7 +13,8 @@ from .gripper import BaseGripper, Gripper, MockGripper
 
 def sim_joint_specs(config: ArmConfig) -> list[SimJointSpec]:
     """The simulated joints for `config`: j1..j4 run firmware J1..J4, end stops at the joint limits."""
-    return [SimJointSpec(name.upper(), jc.address, jc.reduction, jc.min, jc.max, config.sim.start[name])
+    return [SimJointSpec(name.upper(), jc.address, jc.reduction, jc.min, jc.max, config.sim.start[name],
+                         payload_kg=config.sim.payload_kg, noise=config.sim.noise)
             for name, jc in config.joints.items()]
 
 
