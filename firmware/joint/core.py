@@ -90,7 +90,7 @@ class JointController(IrqPath, MainLoop, Handlers, Tasks, Supervisor):
                 self._cache[addr] = bytearray(reg.rsize)
         self._cache[PING][0] = ACK
         self._cache_values = [0, 0, 0, 0]  # what the float caches hold (HAL units)
-        self._cache_turn = 1  # which of the three slower caches is refreshed next
+        self._cache_turn = 2  # which of the two slower caches is refreshed next (index in _cache_values)
         self._f32_scratch = bytearray(4)
         struct.pack_into("<BBBBBI", self._cache[IDENTITY], 0, PROTOCOL_VERSION, FIRMWARE_VERSION[0],
                          FIRMWARE_VERSION[1], FIRMWARE_VERSION[2], cfg.joint_id, SPEC_HASH)
