@@ -261,7 +261,8 @@ def test_a_port_without_a_repl_is_refused(tmp_path):
 
 @pytest.fixture
 def sim_bus():
-    bus = open_arm_bus(load_config())
+    config = load_config()
+    bus = open_arm_bus(replace(config, bus=replace(config.bus, url="sim:virtual")))
     yield bus
     bus.close()
 
@@ -302,7 +303,7 @@ def run_cli(capsys, monkeypatch, board: FakeBoard, *args: str) -> tuple[int, str
 
 
 def test_cli_json_report_with_the_version_check(capsys, monkeypatch):
-    code, out, _ = run_cli(capsys, monkeypatch, FakeBoard(), "--joint", "j1", "--bus", "sim:", "--json")
+    code, out, _ = run_cli(capsys, monkeypatch, FakeBoard(), "--joint", "j1", "--bus", "sim:virtual", "--json")
     assert code == 0
     result = json.loads(out)
     assert result["joint"] == "J1" and result["address"] == 0x11 and result["compiled"] is True
@@ -330,7 +331,7 @@ def test_cli_dry_run(capsys, monkeypatch):
 
 def test_cli_version_mismatch_fails_after_reporting(capsys, monkeypatch):
     expect_another_firmware(monkeypatch)
-    code, out, err = run_cli(capsys, monkeypatch, FakeBoard(), "--joint", "J2", "--bus", "sim:", "--json")
+    code, out, err = run_cli(capsys, monkeypatch, FakeBoard(), "--joint", "J2", "--bus", "sim:virtual", "--json")
     assert code == 1
     assert json.loads(out)["identity"]["problems"] == [f"0x12: firmware {'.'.join(map(str, FIRMWARE_VERSION))}, "
                                                        "expected 9.9.9"]

@@ -269,7 +269,7 @@ def test_the_sim_command_prints_its_paths_and_stops_cleanly_on_ctrl_c() -> None:
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         paths = json.loads(proc.stdout.readline())  # type: ignore[union-attr]
-        assert sorted(paths["joints"]) == ["J1", "J2", "J3", "J4"]
+        assert sorted(paths["joints"]) == ["j1", "j2", "j3", "j4"]
         assert all(os.path.exists(p) for p in [paths["bridge"], *paths["joints"].values()])
         bus = open_bus(f"serial:{paths['bridge']}")
         assert bus.scan() == [0x11, 0x12, 0x13, 0x14]

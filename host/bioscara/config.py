@@ -12,7 +12,7 @@ import difflib
 import math
 import os
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
 from typing import Any, Literal
@@ -36,7 +36,7 @@ class BusConfig:
     url: str = "sim:"  # smbus:N | blinka: | serial:/dev/tty... | sim:
     speed_hz: int = 400_000  # I2C clock, Hz
     attempts: int = 3  # transfer attempts before COMM_ERROR
-    use_mock_hardware: bool = False  # True: ignore url and use the simulated bus
+    use_mock_hardware: bool = False  # True: ignore url and simulate the joints in this process
 
 
 @dataclass(frozen=True)
@@ -108,8 +108,35 @@ class ArmConfig:
 
     @property
     def bus_url(self) -> str:
-        """The bus to open: the simulated one when use_mock_hardware is set."""
-        return "sim:" if self.bus.use_mock_hardware else self.bus.url
+        """The bus to open: joints simulated in this process (virtual time) when use_mock_hardware is set."""
+        return "sim:virtual" if self.bus.use_mock_hardware else self.bus.url
+
+
+USER_CONFIG_NAME = "arm.toml"
+BUS_ENV = "BIOSCARA_BUS"
+
+
+def user_config_path() -> Path:
+    """$XDG_CONFIG_HOME/bioscara/arm.toml: the configuration commands use when given no --config."""
+    from .paths import default_config_dir
+    return default_config_dir() / USER_CONFIG_NAME
+
+
+def resolve_config(path: str | os.PathLike[str] | None = None, bus: str | None = None) -> ArmConfig:
+    """The configuration a command runs with.
+
+    The file: `path`, else the user's (`user_config_path()`) if it exists, else the shipped one.
+    The bus: `bus` (--bus), else $BIOSCARA_BUS, else the file's.
+    """
+    if path is None and user_config_path().is_file():
+        path = user_config_path()
+    config = load_config(path)
+    url = bus or os.environ.get(BUS_ENV, "").strip() or None
+    if url is not None:
+        if not bus and not url.startswith(BUS_SCHEMES):
+            raise ConfigError(f"unknown bus {url!r} in ${BUS_ENV}; use one of {', '.join(BUS_SCHEMES)}")
+        config = replace(config, bus=replace(config.bus, url=url, use_mock_hardware=False))
+    return config
 
 
 def load_config(path: str | os.PathLike[str] | None = None) -> ArmConfig:

@@ -12,7 +12,7 @@ from rich.console import Console
 
 from .arm import Arm, make_joint
 from .bus import Bus
-from .config import ArmConfig, load_config
+from .config import ArmConfig, resolve_config
 from .errors import BioscaraError, InvalidArgumentError
 from .hardware import open_arm, open_arm_bus
 from .joint import Joint
@@ -33,11 +33,7 @@ class Session:
     @property
     def config(self) -> ArmConfig:
         if self._config is None:
-            config = load_config(getattr(self.args, "config", None))
-            url = getattr(self.args, "bus", None)
-            if url:
-                config = replace(config, bus=replace(config.bus, url=url, use_mock_hardware=False))
-            self._config = config
+            self._config = resolve_config(getattr(self.args, "config", None), getattr(self.args, "bus", None))
         return self._config
 
     @property

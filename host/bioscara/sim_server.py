@@ -136,6 +136,7 @@ class SimServer:
             self.bus.add(joint)
             self._consoles.append(DebugConsole(joint.core, pty.readinto, pty.write_line))
             self.joint_paths[spec.firmware_joint] = pty.path
+        self._frontends: list[Any] = []
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self.error: BaseException | None = None
@@ -150,9 +151,17 @@ class SimServer:
         self._ptys.append(pty)
         return pty
 
+    def add_frontend(self, frontend: Any) -> None:
+        """Serve `frontend` in the loop too: its `fds()` are waited on, its `poll()` runs every turn."""
+        self._frontends.append(frontend)
+
+    def request_stop(self) -> None:
+        """End `serve_forever` after the current turn (from the loop's own thread, or any other)."""
+        self._stop.set()
+
     def serve_forever(self) -> None:
         """Follow the wall clock and serve the terminals until `stop()` (or KeyboardInterrupt)."""
-        fds = [pty.fileno() for pty in self._ptys]
+        pty_fds = [pty.fileno() for pty in self._ptys]
         wall_start = time.monotonic()
         sim_start = self.clock.now_us
         while not self._stop.is_set():
@@ -164,7 +173,9 @@ class SimServer:
                 sim_start -= behind - _MAX_CATCH_UP_US
                 target = self.clock.now_us + _MAX_CATCH_UP_US
             self.bus.run_until(target)
-            select.select(fds, [], [], _TURN_S)
+            select.select(pty_fds + [fd for f in self._frontends for fd in f.fds()], [], [], _TURN_S)
+            for frontend in self._frontends:
+                frontend.poll()
             self.bridge.poll()
             for console in self._consoles:
                 console.poll()
