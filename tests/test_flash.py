@@ -290,7 +290,7 @@ def test_a_mismatching_identity_is_reported(sim_bus, monkeypatch):
 def test_a_joint_that_does_not_answer_is_reported(sim_bus):
     check = flash.check_identity(sim_bus, "J1", 0x21, timeout=0.5)
     assert not check.ok and check.found is None
-    assert check.problems[0].startswith("no answer at 0x21 on sim: within 0.5 s")
+    assert check.problems[0].startswith("no answer at 0x21 on sim:virtual within 0.5 s")
 
 
 # ---- the command ----

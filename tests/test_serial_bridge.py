@@ -53,7 +53,9 @@ def server(config: ArmConfig) -> Iterator[SimServer]:
 
 @pytest.fixture
 def bus(server: SimServer) -> Iterator[SerialBus]:
-    bus = open_bus(f"serial:{server.bridge_path}")
+    # The server shares this process (and its GIL) with the host: a longer wait per attempt than
+    # a USB bridge needs, so a loaded machine does not turn into lost transfers here.
+    bus = open_bus(f"serial:{server.bridge_path}?timeout=0.1")
     assert isinstance(bus, SerialBus)
     yield bus
     bus.close()

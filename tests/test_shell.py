@@ -183,7 +183,7 @@ def test_start_stop_restart_the_communicator(console: Console) -> None:
     assert stats[0] == "communicator stopped, target 50 Hz, scheduling: normal"
     assert stats[1].startswith(f"  {cycles} cycles, rate ") and "jitter" in stats[1] and "overruns" in stats[1]
     assert stats[2].startswith("  cycle duration mean ")
-    assert stats[3] == "link health, bus sim:"
+    assert stats[3] == "link health, bus sim:virtual"
     assert stats[4].split() == ["joint", "addr", "transactions", "failed", "attempts", "lost", "last", "error"]
     assert [row.split()[:2] for row in stats[5:]] == [["j1", "0x11"], ["j2", "0x12"], ["j3", "0x13"], ["j4", "0x14"]]
     console.ok("stop")
@@ -268,6 +268,7 @@ def test_interactive_line_editing_history_and_ctrl_c(console: Console, arm: Arm,
     assert arm.lifecycle is Lifecycle.UNCONFIGURED
     assert "+read j1 PING" in history.read_text().splitlines()
     assert "configure" not in history.read_text()
+    assert history.stat().st_mode & 0o777 == 0o600 and history.parent.stat().st_mode & 0o777 == 0o700, "private"
 
 
 def test_the_line_editors_completer_replaces_the_word_being_typed(console: Console) -> None:

@@ -78,7 +78,7 @@ def test_state_is_kept_between_commands_and_clients_share_the_arm(
     assert cli.main(["move", "j3", "1.0", "--config", config]) == 0, "a move beside the monitor"
     out, err = monitor.communicate(timeout=30)
     assert monitor.returncode == 0, err
-    assert json.loads(out.splitlines()[-1])["errors"] == 0
+    assert json.loads(out.splitlines()[-1])["summary"]["errors"] == 0
     with open(record) as f:
         f.readline()
         j3 = [float(row["j3/position"]) for row in csv.DictReader(f)]

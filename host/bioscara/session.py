@@ -6,7 +6,7 @@ import argparse
 import json
 import sys
 from dataclasses import replace
-from typing import Any, Callable
+from typing import Any
 
 from rich.console import Console
 
@@ -49,23 +49,13 @@ class Session:
         return self._arm
 
     def joint(self, name: str) -> Joint:
-        """An initialized joint by name (j1..j4)."""
+        """An initialized joint by name (j1..j4, or J1..J4)."""
+        name = name.lower()
         if name not in self.config.joints:
             raise InvalidArgumentError(f"no joint {name!r}; the configuration has {', '.join(self.config.joints)}")
         joint = make_joint(self.config.joints[name], self.bus)
         joint.init()
         return joint
-
-    def each_joint(self, names: list[str], action: Callable[[Joint], object], done: str) -> dict[str, str]:
-        """`action` on every named joint, going on past one that fails: name -> `done` or "FAILED: why"."""
-        results = {}
-        for name in names:
-            try:
-                action(self.joint(name))
-                results[name] = done
-            except BioscaraError as exc:
-                results[name] = f"FAILED: {exc}"
-        return results
 
     def emit(self, data: Any, human: Any = None) -> None:
         """Print `data` as JSON with --json, else `human` (a rich renderable or text) or `data`."""
@@ -77,8 +67,17 @@ class Session:
     def err(self, message: str) -> None:
         Console(stderr=True, soft_wrap=True).print(message, style="red", markup=False, highlight=False)
 
+    def fail(self, exc: BioscaraError | OSError, status: int) -> None:
+        """Report the error that ends the command: one line on stderr, `error: [JOINT: ]what`."""
+        if isinstance(exc, BioscaraError):
+            message = f"{exc.joint}: {exc.detail}" if exc.joint else exc.detail
+        else:
+            message = str(exc)
+        self.err(f"error: {message}")
+
     def arm_of(self, names: list[str]) -> Arm:
         """An arm made of some of the configured joints (commands act on those only)."""
+        names = [name.lower() for name in names]
         unknown = [name for name in names if name not in self.config.joints]
         if unknown:
             raise InvalidArgumentError(f"no joint {', '.join(unknown)}; the configuration has {', '.join(self.config.joints)}")

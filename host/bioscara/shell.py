@@ -21,13 +21,13 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from enum import Enum
 from pathlib import Path
-from typing import Protocol
+from typing import Any, Protocol
 
 from .arm import Arm, Mode, make_joint
 from .bus.base import Bus
 from .communicator import Communicator
 from .config import ArmConfig
-from .errors import BioscaraError
+from .errors import BioscaraError, InvalidArgumentError
 from .firmware import protocol as P
 from .joint import Joint
 
@@ -50,6 +50,29 @@ class ShellContext(Protocol):
 
     @property
     def arm(self) -> Arm: ...
+
+
+NOT_UTF8 = "\ufffe not UTF-8"  # stands for a script line that could not be decoded
+
+
+def script_lines(source: Path | Any) -> list[str]:
+    """The lines of a script file (or a binary stream); an undecodable line becomes NOT_UTF8, which
+    fails where it stands. InvalidArgumentError if the file cannot be read."""
+    if isinstance(source, Path):
+        try:
+            raw = source.read_bytes()
+        except OSError as exc:
+            raise InvalidArgumentError(f"cannot read {source}: {exc.strerror or exc}") from None
+        chunks = raw.splitlines()
+    else:
+        chunks = list(source)
+    lines = []
+    for chunk in chunks:
+        try:
+            lines.append(chunk.decode("utf-8").rstrip("\r\n"))
+        except UnicodeDecodeError:
+            lines.append(NOT_UTF8)
+    return lines
 
 
 class ShellError(Exception):
@@ -135,6 +158,9 @@ class Shell:
     def execute(self, line: str, where: str = "") -> bool:
         """Run one console line; False if it failed (the reason is printed, prefixed by `where`)."""
         prefix = f"{where}: " if where else ""
+        if line == NOT_UTF8:
+            self.err(f"{prefix}error: not UTF-8 text; nothing was run")
+            return False
         try:
             words = shlex.split(line, comments=True)
         except ValueError as exc:
@@ -161,7 +187,7 @@ class Shell:
         ok = True
         for number, line in enumerate(lines, 1):
             line = line.rstrip("\n")
-            if echo and line.strip() and not line.lstrip().startswith("#"):
+            if echo and line.strip() and not line.lstrip().startswith("#") and line != NOT_UTF8:
                 self.out(f"> {line.strip()}")
             if not self.execute(line, f"{source}:{number}"):
                 ok = False
@@ -477,7 +503,12 @@ class Shell:
         path = Path(files[0])
         if path.resolve() in self._scripts:
             raise ShellError(f"{path} is already running (a script cannot run itself)")
-        lines = path.read_text().splitlines()
+        if path.is_dir():
+            raise ShellError(f"{path} is a directory, not a script")
+        try:
+            lines = script_lines(path)
+        except InvalidArgumentError as exc:
+            raise ShellError(exc.detail) from None
         self._scripts.append(path.resolve())
         try:
             ok = self.run_lines(lines, str(path), keep_going=keep_going)

@@ -34,6 +34,7 @@ log = logging.getLogger("bioscara.sim_server")
 
 _TURN_S = 0.001  # longest wait for input: one simulated main-loop tick
 _MAX_CATCH_UP_US = 20_000  # per turn; below the joints' 50 ms deadman
+_SLICE_US = 2_000  # simulated time between looks at the terminals and clients
 
 
 class Pty:
@@ -172,13 +173,18 @@ class SimServer:
                 # as silence on the bus, which the joints' deadman would take for a lost host.
                 sim_start -= behind - _MAX_CATCH_UP_US
                 target = self.clock.now_us + _MAX_CATCH_UP_US
-            self.bus.run_until(target)
+            while self.clock.now_us < target:  # in slices, serving requests in between: answers stay prompt
+                self.bus.run_until(min(target, self.clock.now_us + _SLICE_US))
+                self._serve()
             select.select(pty_fds + [fd for f in self._frontends for fd in f.fds()], [], [], _TURN_S)
-            for frontend in self._frontends:
-                frontend.poll()
-            self.bridge.poll()
-            for console in self._consoles:
-                console.poll()
+            self._serve()
+
+    def _serve(self) -> None:
+        for frontend in self._frontends:
+            frontend.poll()
+        self.bridge.poll()
+        for console in self._consoles:
+            console.poll()
 
     def start(self) -> None:
         """Serve in a background thread."""

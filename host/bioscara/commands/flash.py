@@ -13,6 +13,7 @@ from ..session import Session
 NAME = "flash"
 HELP = ("deploy the joint firmware onto a MicroPython board (mpremote): precompile, copy what changed, "
         "verify, reboot, and with --bus check the joint's version over the bus")
+USES = ("bus", "json")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -19,6 +19,7 @@ NAME = "sim"
 HELP = ("the shared simulated arm behind the default `sim:` bus: start it (also done by the first "
         "command that needs it), show it, stop it (its state is kept until then); --pty: a separate "
         "arm in the foreground behind pseudo-terminals, Ctrl-C stops it")
+USES = ("config", "json")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
