@@ -59,6 +59,10 @@ def main() -> None:
         print(f"  {rate:>5.0f} Hz, real time ({r['scheduling']}): achieved {r['rate']:6.1f} Hz, "
               f"jitter {r['jitter_us']:5.0f} us, {r['overruns']:4d}/{r['cycles']} overruns, "
               f"host CPU {r['host_share'] * 100:5.1f} % (+ simulator {r['sim_share'] * 100:.0f} %)")
+    print("panel, `bioscara panel` in a pseudo-terminal on the simulated arm")
+    panel = subprocess.run([sys.executable, str(ROOT / "bench" / "panel.py")], capture_output=True, text=True,
+                           check=True).stdout
+    print("".join(f"  {line}\n" for line in panel.splitlines()), end="")
 
 
 if __name__ == "__main__":

@@ -297,6 +297,23 @@ class Arm:
         except BioscaraError as disable_error:
             log.error("could not disable every joint after the fault: %s", disable_error)
 
+    def stop(self) -> None:
+        """STOP every joint at once (aborting homing), then take every joint out of position and
+        velocity mode so the next cycle sends no motion. Tries all joints; raises the first failure."""
+        with self._lock:
+            first: BioscaraError | None = None
+            for aj in self.joints.values():
+                try:
+                    aj.joint.stop()
+                except BioscaraError as exc:
+                    first = first or exc
+            for aj in self.joints.values():
+                aj.modes -= {Mode.POSITION, Mode.VELOCITY}
+                aj.command.velocity = 0.0
+                aj.command.home = 0.0
+            if first is not None:
+                raise first
+
     # ---- command modes ----
 
     def switch_modes(self, start: Iterable[str] = (), stop: Iterable[str] = ()) -> None:

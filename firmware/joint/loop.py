@@ -1,0 +1,129 @@
+"""The joint core's main-loop context: apply queued commands, step tasks, refresh reply caches.
+
+`service()` runs once per main-loop iteration: it drains the IRQ's command queue in arrival order
+into the motor HAL (`handlers.py`), steps the running blocking task (`tasks.py`), runs the
+supervision (`supervise.py`) and packs the reply caches the IRQ serves. Its writes to state the IRQ
+reads are wrapped in `critical` sections.
+"""
+
+import struct
+
+from .irq import COUNTER_MASK, MOTION_BLOCKED, QUEUE_SLOTS, SLOT, SLOT_FLAGS, SLOT_HALTS, SLOT_STOPS
+from .protocol import (
+    ANGLEMOVED, BY_ADDR, FLAG_BUSY, FLAG_NOTENABLED, GETDRIVERRPM, GETENCODERRPM, GETPIDERROR,
+    LASTERROR, reject_string,
+)
+
+
+class MainLoop:
+    """JointController's main-loop methods (mixed into it)."""
+
+    def cached_reply(self, addr):
+        """The reply payload bytes the IRQ path serves for register `addr` (None: not readable)."""
+        return self._cache[addr]
+
+    def service(self):
+        """One main-loop iteration; call it every millisecond or faster."""
+        now = self.clock.ticks_ms()
+        if self.transactions != self._seen_transactions:
+            self._seen_transactions = self.transactions
+            self._last_host_ms = now
+        if not self.disabled:
+            try:
+                self._service_motor(now)
+            except Exception as exc:
+                self._motor_fault(exc)
+        if self.rejects != self._logged_rejects:
+            self._logged_rejects = self.rejects
+            cache = self._cache[LASTERROR]
+            self.log.warn("rejected a frame for register 0x%02x: %s" % (cache[1], reject_string(cache[0])))
+
+    def _motor_fault(self, exc):
+        """The motor backend failed (driver or encoder unreachable): disable the joint for good."""
+        self.disabled = True
+        self._task = None
+        self.task_name = None
+        state = self._irq_off()
+        self.flags = (self.flags | FLAG_NOTENABLED) & ~FLAG_BUSY
+        self._irq_on(state)
+        self.ready = True
+        self.log.error("motor fault, joint disabled until reset: %r" % (exc,))
+
+    def _service_motor(self, now):
+        diff = self.clock.ticks_diff
+        self.hal.update()
+        if self.stops != self._stops_seen:
+            self._stops_seen = self.stops
+            self.hal.set_rpm(0)
+            self.qd_set = 0.0
+            self.positioning = False
+        while self._q_out != self._q_in:
+            self._apply_next()
+        if self._task is not None and (diff(now, self._task_wake) >= 0 or self._cancelled()):
+            self._step_task(now)
+        if self.positioning and self.hal.position_reached():
+            self.positioning = False
+        if diff(now, self._next_stall_ms) >= 0:
+            self._next_stall_ms = self.clock.ticks_add(now, self._stall_period_ms)
+            self._check_stall()
+        self._check_deadman(now)
+        self._refresh_caches()
+
+    def _set_flags(self, mask):
+        state = self._irq_off()
+        self.flags |= mask
+        self._irq_on(state)
+
+    def _clear_flags(self, mask):
+        state = self._irq_off()
+        self.flags &= ~mask
+        self._irq_on(state)
+
+    def _refresh_caches(self):
+        hal = self.hal
+        angle, rpm, driver, error = hal.angle_moved(), hal.encoder_rpm(), hal.driver_rpm(), hal.pid_error()
+        cache = self._cache
+        state = self._irq_off()
+        struct.pack_into("<f", cache[ANGLEMOVED], 0, angle)
+        struct.pack_into("<f", cache[GETENCODERRPM], 0, rpm)
+        struct.pack_into("<f", cache[GETDRIVERRPM], 0, driver)
+        struct.pack_into("<f", cache[GETPIDERROR], 0, error)
+        self._irq_on(state)
+
+    def _apply_next(self):
+        base = (self._q_out % QUEUE_SLOTS) * SLOT
+        queue = self._queue
+        addr = queue[base]
+        # Motion is judged by the state in command order: the flags right after this command was
+        # accepted, and nothing stopped the motor (STOP, stall, deadman) since then.
+        self._motion_allowed = (not queue[base + SLOT_FLAGS] & MOTION_BLOCKED
+                                and queue[base + SLOT_HALTS] == self.halts)
+        if BY_ADDR[addr].blocking:
+            if queue[base + SLOT_STOPS] == self.stops:
+                self._finish_cancelled_task()
+                self._handlers[addr](queue, base + 1)
+            else:
+                self.log.info("%s cancelled by STOP before it started" % BY_ADDR[addr].name)
+            self._blocking_out = (self._blocking_out + 1) & COUNTER_MASK
+        else:
+            self._handlers[addr](queue, base + 1)
+        self._q_out = (self._q_out + 1) & COUNTER_MASK
+
+    def _may_move(self):
+        return self._motion_allowed
+
+    def _halt(self, flag, rearms=-1, transactions=-1):
+        """Set `flag` and invalidate queued motion, unless the host re-armed the joint (a frame
+        cleared STALL: `rearms` changed) or spoke (`transactions` changed) since the decision.
+        Returns whether it halted."""
+        state = self._irq_off()
+        if (rearms >= 0 and rearms != self.stall_rearms
+                or transactions >= 0 and transactions != self.transactions):
+            self._irq_on(state)
+            return False
+        self.flags |= flag
+        self.halts = (self.halts + 1) & 0xFF
+        self._irq_on(state)
+        self.qd_set = 0.0
+        self.positioning = False
+        return True

@@ -1,0 +1,156 @@
+"""The joint core's blocking commands: boot, HOME and CHECKORIENTATION as generator tasks.
+
+A task holds BUSY while it runs; the main loop steps it when its wait is over (each `yield` says
+how many milliseconds to wait) or a STOP cancelled it.
+"""
+
+from .protocol import FLAG_BUSY, FLAG_NOTHOMED, FLAG_STALL, FLAGS_AT_BOOT
+
+try:
+    from micropython import const
+except ImportError:
+    def const(value):
+        return value
+
+_HOMING_SETTLE_MS = const(500)
+_MOVE_TIMEOUT_MS = const(10000)
+_ORIENTATION_MAX_ROUNDS = const(10)
+_WIND_DOWN_STEPS = const(8)
+
+
+class Tasks:
+    """JointController's blocking commands (mixed into it): generators yielding milliseconds to wait."""
+
+    def _start_task(self, name, task):
+        self._task_stops = self.stops  # before _task: the IRQ reads both
+        self.task_name = name
+        self._task_wake = self.clock.ticks_ms()
+        self._task = task
+
+    def _cancelled(self):
+        return self._task_stops != self.stops
+
+    def _step_task(self, now):
+        try:
+            wait = next(self._task)
+            self._task_wake = self.clock.ticks_add(now, wait)
+        except StopIteration:
+            self._end_task()
+
+    def _end_task(self):
+        # One critical section: a blocking command accepted in between would otherwise lose its
+        # BUSY. A cancelled task's BUSY went with the STOP and may belong to a newer command now.
+        state = self._irq_off()
+        if not self._cancelled():
+            self.flags &= ~FLAG_BUSY
+        self._task = None
+        self._irq_on(state)
+        self.task_name = None
+
+    def _finish_cancelled_task(self):
+        """Let a task a STOP cancelled wind down (it does not wait any more) before a new one."""
+        task = self._task
+        if task is None:
+            return
+        for _ in range(_WIND_DOWN_STEPS):
+            try:
+                next(task)
+            except StopIteration:
+                break
+        else:
+            task.close()
+        self._end_task()
+
+    def _boot(self):
+        """The original setup(): closed loop, boot limits, orientation check, then freewheel."""
+        hal = self.hal
+        boot = self.cfg.boot
+        hal.begin()
+        hal.enable_closed_loop()
+        self.closed_loop = True
+        hal.set_max_acceleration(boot.max_acceleration)
+        hal.set_max_deceleration(boot.max_acceleration)
+        hal.set_max_velocity(boot.max_velocity)
+        hal.set_control_threshold(boot.control_threshold)
+        yield from self._orientation(boot.orientation_check)
+        hal.stop(True)
+        hal.set_current(0)
+        hal.set_hold_current(0)
+        hal.set_brake_mode(0)
+        self._set_flags(FLAGS_AT_BOOT)
+        self.ready = True
+        self.log.info("%s ready at 0x%02x" % (self.cfg.joint, self.cfg.address))
+
+    def _wait_reached(self):
+        """Wait for a positioning move; False on timeout or when a STOP cancelled the task."""
+        waited = 0
+        while not self.hal.position_reached():
+            if waited >= _MOVE_TIMEOUT_MS or self._cancelled():
+                return False
+            waited += 1
+            yield 1
+        return True
+
+    def _orientation(self, degrees):
+        """The stepper library's checkOrientation: +/- moves until two agree on the direction.
+
+        Unlike the library it gives up on a STOP or a move that never arrives (the library
+        waited forever), keeping the driver direction it had.
+        """
+        hal = self.hal
+        hal.disable_closed_loop()
+        hal.set_inverted(False)
+        inverted = normal = rounds = 0
+        while inverted < 2 and normal < 2:
+            rounds += 1
+            if rounds > _ORIENTATION_MAX_ROUNDS:
+                self.log.error("orientation check inconclusive after %d rounds" % (rounds - 1))
+                break
+            start = hal.angle_moved()
+            hal.move_angle(degrees)
+            if not (yield from self._wait_reached()):
+                break
+            if hal.angle_moved() < start:
+                inverted += 1
+            else:
+                normal += 1
+            hal.move_angle(-degrees)
+            if not (yield from self._wait_reached()):
+                break
+            if inverted and normal:
+                inverted = normal = 0
+        if inverted >= 2 or normal >= 2:
+            self.inverted = inverted >= 2
+            if self.inverted:
+                self.log.info("motor wiring inverted: driver direction reversed")
+        else:
+            hal.stop(True)
+            self.log.error("orientation check %s; driver direction unchanged"
+                           % ("stopped" if self._cancelled() else "did not finish"))
+        hal.set_inverted(self.inverted)
+        if self.closed_loop:
+            hal.enable_closed_loop()
+
+    def _homing(self, direction, speed, sensitivity, current):
+        """Drive into the end stop until |PID error| > sensitivity; STOP (BUSY cleared) aborts."""
+        hal = self.hal
+        hal.stop(True)
+        yield _HOMING_SETTLE_MS
+        homed = False
+        if not self._cancelled():
+            hal.set_rpm(speed if direction else -speed)
+            hal.set_current(current)
+            while not self._cancelled():
+                if abs(hal.pid_error()) > sensitivity:
+                    homed = True
+                    break
+                yield 1
+        if homed:
+            hal.set_home()
+            self._clear_flags(FLAG_NOTHOMED | FLAG_STALL)
+            self.log.info("homed")
+        else:
+            self._set_flags(FLAG_NOTHOMED)
+            self.log.info("homing aborted")
+        hal.stop(True)
+        hal.set_current(self.drive_current)

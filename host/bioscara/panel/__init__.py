@@ -1,0 +1,1 @@
+"""`bioscara panel`: the arm's control panel in a terminal (Textual) and in a browser."""
