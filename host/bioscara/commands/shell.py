@@ -59,7 +59,8 @@ def run(args: argparse.Namespace, session: Session) -> int:
     context = open_context(session.config)
     shell = Shell(context, out=lambda text: session.console.print(text, markup=False, highlight=False,
                                                                   soft_wrap=True),
-                  err=session.err, expert=args.expert, frequency=args.rate, priority=args.priority or None)
+                  err=session.err, expert=args.expert, frequency=args.rate, priority=args.priority or None,
+                  keep_alive=True)
     try:
         if args.script not in (None, "-"):
             lines = script_lines(Path(args.script))
@@ -110,7 +111,7 @@ def interactive(shell: Shell, history: Path, *, input: Any = None, output: Any =
         store = InMemoryHistory()
     prompt: PromptSession[str] = PromptSession(history=store, completer=_completer(shell), input=input,
                                                output=output)
-    with patch_stdout():  # keeps output from other threads (log lines) off the line being edited
+    with patch_stdout(raw=True):  # output from other threads stays off the line being edited; colours pass
         while not shell.done:
             try:
                 line = prompt.prompt(shell.prompt)
