@@ -339,3 +339,20 @@ def test_the_sim_command_prints_its_paths_and_stops_cleanly_on_ctrl_c() -> None:
         proc.send_signal(signal.SIGINT)
         _, err = proc.communicate(timeout=10)
     assert proc.returncode == 0 and err == ""
+
+
+def test_ports_says_which_port_is_the_bridge_and_which_a_joint(server: SimServer, tmp_path, capsys) -> None:
+    from bioscara import cli
+    plain = Pty()  # a terminal nothing answers on
+    try:
+        code = cli.main(["ports", "--json", server.bridge_path, server.joint_paths["J2"], plain.path,
+                         str(tmp_path / "ttyACM5")])
+        found = {e["port"]: e for e in json.loads(capsys.readouterr().out)}
+    finally:
+        plain.close()
+    assert code == 0
+    assert found[server.bridge_path]["kind"] == "HIL bridge" and found[server.bridge_path]["use"].startswith("--bus")
+    assert found[server.joint_paths["J2"]]["kind"] == "joint debug port"
+    assert found[server.joint_paths["J2"]]["detail"] == "j2 at 0x12"
+    assert found[plain.path]["kind"] == "unknown"
+    assert found[str(tmp_path / "ttyACM5")]["kind"] == "unavailable"
