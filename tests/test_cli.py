@@ -261,3 +261,35 @@ def test_piped_output_is_plain_lines(capsys: pytest.CaptureFixture[str], bus: Si
     code, out, _ = run(capsys, "monitor", "--samples", "2", bus=bus)
     lines = out.splitlines()
     assert len(lines) == 3 and all(line.count(" rad/s") == 3 and " m/s" in line for line in lines[:2])
+
+
+def test_hardware_doc_has_the_generated_pin_map_and_the_readme_cites_only_files_in_the_repo() -> None:
+    from pathlib import Path
+
+    from bioscara import flash, wiring
+    root = Path(__file__).resolve().parent.parent
+    assert wiring.markdown(flash.joint_config("J1")[1]) in (root / "docs" / "hardware.md").read_text(), \
+        "docs/hardware.md: paste the output of `bioscara pins j1 --markdown`"
+    readme = (root / "README.md").read_text()
+    for cited in re.findall(r"`([\w./-]+\.md)`", readme):
+        assert (root / cited).exists(), cited
+
+
+def test_user_config_file_and_bus_environment_variable(capsys: pytest.CaptureFixture[str], tmp_path,
+                                                       monkeypatch: pytest.MonkeyPatch) -> None:
+    import os
+    from pathlib import Path
+
+    from bioscara.config import load_config, user_config_path
+    path = user_config_path()
+    assert path == Path(os.environ["XDG_CONFIG_HOME"]) / "bioscara" / "arm.toml"
+    path.parent.mkdir(parents=True)
+    path.write_text(Path(load_config().source).read_text().replace("address = 0x14", "address = 0x24"))
+    code, out, _ = run(capsys, "info", "j4", "--json")
+    assert code == 0 and json.loads(out)["address"] == 0x24, "the user's configuration was used"
+    monkeypatch.setenv("BIOSCARA_BUS", "smbus:/dev/i2c-77")
+    code, _, err = run(capsys, "scan")
+    assert code == 1 and "cannot open /dev/i2c-77" in err, "the variable chose the bus"
+    monkeypatch.setenv("BIOSCARA_BUS", "pigeon:")
+    code, _, err = run(capsys, "scan")
+    assert code == 2 and "in $BIOSCARA_BUS" in err

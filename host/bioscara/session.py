@@ -25,6 +25,8 @@ class Session:
         self.args = args
         self.json = bool(getattr(args, "json", False))
         self.console = Console(stderr=self.json)
+        if not self.console.is_terminal:  # piped: whole lines, not wrapped at 80 columns
+            self.console = Console(stderr=self.json, width=200)
         self._config: ArmConfig | None = None
         self._bus = bus
         self._owns_bus = bus is None

@@ -7,7 +7,9 @@ import argparse
 import sys
 from typing import Any
 
+from rich.console import Group
 from rich.table import Table
+from rich.text import Text
 
 from .. import sim_service
 from ..errors import InvalidArgumentError
@@ -67,10 +69,10 @@ def _describe(status: dict[str, Any], started: bool) -> dict[str, Any]:
                        for spec in status["specs"]}}
 
 
-def _render(data: dict[str, Any]) -> Table:
-    table = Table(title=f"simulated arm {'started' if data['started'] else 'running'}: pid {data['pid']}, "
-                  f"up {data['uptime_s']:.0f} s, {data['clients']} other client(s); `bioscara sim stop` ends it",
-                  box=None, title_justify="left")
+def _render(data: dict[str, Any]) -> Group:
+    head = Text(f"simulated arm {'started' if data['started'] else 'running'}: pid {data['pid']}, "
+                f"up {data['uptime_s']:.0f} s, {data['clients']} other client(s); `bioscara sim stop` ends it")
+    table = Table(box=None)
     for column in ("serves", "at", "use with"):
         table.add_column(column)
     table.add_row("the sim: bus", data["socket"], "every command (the default bus)")
@@ -78,7 +80,7 @@ def _render(data: dict[str, Any]) -> Table:
     for joint, entry in data["joints"].items():
         table.add_row(f"{joint} (0x{entry['address']:02x}) debug console", str(entry["console"]),
                       f"bioscara console {entry['console']}")
-    return table
+    return Group(head, table)
 
 
 def _foreground(session: Session) -> int:
