@@ -3,8 +3,12 @@ PYTHON ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
+# The emulated Pico (chip/): installed only where npm exists; its tests skip without it.
+NPM := $(shell command -v npm 2>/dev/null)
+CHIP_STAMP := chip/node_modules/.installed
+CHIP := $(if $(NPM),$(CHIP_STAMP))
 
-.PHONY: demo test bench clean browser panel-screenshot
+.PHONY: demo test bench bench-chip clean browser panel-screenshot
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -12,10 +16,14 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet -e '.[dev]'
 	touch $(STAMP)
 
+$(CHIP_STAMP): chip/package.json chip/package-lock.json
+	npm ci --prefix chip --no-audit --no-fund --loglevel=error
+	touch $(CHIP_STAMP)
+
 demo: $(STAMP)
 	$(BIN)/bioscara demo
 
-test: $(STAMP) browser
+test: $(STAMP) browser $(CHIP)
 	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/python -m pytest
 
 bench: $(STAMP)
@@ -30,5 +38,9 @@ browser:
 panel-screenshot: $(STAMP)
 	$(BIN)/python -m bioscara.panel.screenshot docs/panel.svg
 
+# Figures measured on the emulated Pico (needs node and ../shared/rp2040; says what is missing).
+bench-chip: $(STAMP) $(CHIP)
+	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/python bench/chip_bench.py
+
 clean:
-	rm -rf $(VENV) build *.egg-info
+	rm -rf $(VENV) build *.egg-info chip/node_modules

@@ -15,7 +15,8 @@ import sys
 import time
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
-sys.path[:0] = [str(ROOT / "firmware"), str(ROOT / "firmware" / "tests"), str(ROOT / "bench")]
+sys.path[:0] = [str(ROOT / "firmware"), str(ROOT / "firmware" / "tests"), str(ROOT / "bench"),
+                str(ROOT / "tests")]
 
 
 def micropython_figures() -> dict[str, float]:
@@ -34,6 +35,10 @@ def main() -> None:
         print(f"  IRQ path, {frame}: {mp['irq_us_' + label]:.1f} us per transaction = "
               f"{mp['irq_fraction_of_wire_' + label] * 100:.1f} % of its 187.5 us wire time at 400 kHz")
     print(f"  main-loop iteration (recording motor, no physics): {mp['main_loop_us']:.1f} us")
+    print(f"  protocol v2 pass (swap, judge, pack): {mp['v2_poll_us_frame']:.1f} us with a frame, "
+          f"{mp['v2_poll_us_idle']:.1f} us without")
+    print(f"firmware.v2_poll_us.frame {mp['v2_poll_us_frame']:.1f}")
+    print(f"firmware.v2_poll_us.idle {mp['v2_poll_us_idle']:.1f}")
     print(f"  simulated joint turning at 60 rpm: {mp['sim_virtual_s_per_wall_s']:.1f} virtual s per wall s")
     print("host simulator, CPython")
     import simspeed
@@ -41,11 +46,28 @@ def main() -> None:
     print(f"  simulated joint turning at 60 rpm: {speed:.1f} virtual s per wall s")
 
     import host
-    c = host.control_cycle()
-    print("host, 4-joint control cycle (2 reads + 1 position write per joint) on the simulated bus")
-    print(f"  wire: {c['bits']:.0f} bit times = {c['wire_us']:.0f} us at 400 kHz")
-    print(f"  host CPU: {c['host_us']:.0f} us per cycle = {c['fraction']:.2f} x the wire time "
-          f"(the simulator itself: {c['sim_us']:.0f} us, excluded)")
+    cycles = {protocol: host.control_cycle(protocol=protocol) for protocol in ("legacy", "v2")}
+    for protocol, c in cycles.items():
+        what = "2 reads + 1 position write per joint" if protocol == "legacy" else "1 combined transaction per joint"
+        print(f"host, 4-joint control cycle over {protocol} ({what}) on the simulated bus")
+        print(f"  wire: {c['bits']:.0f} bit times = {c['wire_us']:.0f} us at 400 kHz")
+        print(f"  host CPU: {c['host_us']:.0f} us per cycle = {c['fraction']:.2f} x the wire time "
+              f"(the simulator itself: {c['sim_us']:.0f} us, excluded)")
+    for protocol, c in cycles.items():
+        print(f"{protocol}.cycle_bits.4joints {c['bits']:.0f}")
+        for khz in (400, 1000):
+            print(f"{protocol}.cycle_rate_hz.4joints.{khz}khz {khz * 1000 / c['bits']:.0f}")
+    import v2_attack
+    attacks = (("joint", v2_attack.attack_joint(100_000, seed=1), "applied"),
+               ("host", v2_attack.attack_host(100_000, seed=2), "accepted_wrong"))
+    print("protocol v2 under attack: 100,000 corrupted frames each way (seeded; tests/v2_attack.py)")
+    for side, r, bad in attacks:
+        kinds = ", ".join(f"{k} {n}" for k, n in r.by_kind.items())
+        print(f"  to the {side}: {kinds}; unchanged by the corruption {r.identical}")
+        print(f"v2.attack.{side}.frames {r.frames}")
+        print(f"v2.attack.{side}.{bad} {getattr(r, bad)}")
+        print(f"v2.attack.{side}.uncounted {r.uncounted}")
+        print(f"v2.attack.{side}.intact_lost {r.intact_lost}")
     b = host.bridge_throughput()
     print("HIL bridge framing over the simulator's pseudo-terminal (real time)")
     print(f"  {b['per_s']:.0f} PING transactions/s ({b['us']:.0f} us each, serial round trip included)")

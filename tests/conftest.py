@@ -65,9 +65,10 @@ def recorder(bus: SimBus) -> Recorder:
     return Recorder(bus)
 
 
-@pytest.fixture
-def arm(config: ArmConfig, bus: SimBus) -> Arm:
-    return Arm(config, bus)
+@pytest.fixture(params=["v2", "legacy"])
+def arm(request: pytest.FixtureRequest, config: ArmConfig, bus: SimBus) -> Arm:
+    """The arm on the simulated bus, once over protocol v2 (what "auto" picks) and once legacy."""
+    return Arm(config, bus, request.param)
 
 
 @pytest.fixture

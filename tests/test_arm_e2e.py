@@ -102,6 +102,7 @@ def test_the_deadman_stops_a_joint_when_the_host_stops_writing(arm: Arm, comm: C
     assert abs(joint.stepper.encoder_rpm()) < 1
 
 
+@pytest.mark.parametrize("arm", ["legacy"], indirect=True)
 def test_releasing_velocity_mode_while_turning_commands_zero(arm: Arm, comm: Communicator, bus: SimBus) -> None:
     _home_all(arm, comm)
     recorder = Recorder(bus)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from bioscara.firmware import protocol as P
+
 import csv
 import json
 import re
@@ -108,6 +110,20 @@ def test_info_reports_identity_and_flags(capsys: pytest.CaptureFixture[str]) -> 
     assert "{" not in out and "e-05" not in out, "no Python reprs"
 
 
+def test_scan_and_info_show_the_protocol_and_protocol_forces_one(capsys: pytest.CaptureFixture[str],
+                                                                 bus: SimBus) -> None:
+    code, out, _ = run(capsys, "scan", "--json", bus=bus)
+    assert code == 0 and all(d["protocols"] == "legacy+v2" for d in json.loads(out))
+    code, out, _ = run(capsys, "info", "j2", "--json", bus=bus)
+    info = json.loads(out)
+    assert code == 0 and info["protocol"] == "v2" and info["v2_link"]["bad_states"] == 0
+    assert bus.joint(0x12).protocol == 1, "info returns the joint to the legacy map when done"
+    code, out, _ = run(capsys, "info", "j2", "--json", "--protocol", "legacy", bus=bus)
+    assert code == 0 and json.loads(out)["protocol"] == "legacy" and "v2_link" not in json.loads(out)
+    code, _, err = run(capsys, "info", "j2", "--protocol", "v3", bus=bus)
+    assert code == 2 and "invalid choice: 'v3'" in err
+
+
 def test_errors_are_one_line_and_non_zero(capsys: pytest.CaptureFixture[str], tmp_path) -> None:
     bad = tmp_path / "arm.toml"
     bad.write_text("[bus]\nattempts = 99\n")
@@ -144,9 +160,10 @@ def test_ctrl_c_while_homing_sends_stop(capsys: pytest.CaptureFixture[str], bus:
     monkeypatch.setattr(Communicator, "cycle", interrupted)
     code, _, err = run(capsys, "home", "j1", bus=bus)
     assert code == 130 and "interrupted" in err
-    sent = recorder.to(0x11)
-    assert bytes([0x2D]) == sent[[w[:1] for w in sent].index(bytes([0x2D]))][:1], "homing had started"
-    assert bytes([0x29, 0]) in sent[[w[:1] for w in sent].index(bytes([0x2D])):], "then STOP"
+    # The command byte leads a legacy frame and a v2 mailbox alike.
+    commands = [w[0] for w in recorder.to(0x11) if w]
+    assert P.HOME in commands, "homing had started"
+    assert P.STOP in commands[commands.index(P.HOME):], "then STOP"
     assert bus.joint(0x11).core.task_name is None, "the firmware aborted the homing"
 
 

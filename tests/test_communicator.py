@@ -23,8 +23,10 @@ def test_cycles_run_at_the_configured_rate_in_virtual_time(arm: Arm, bus: SimBus
     assert stats.cycles == pytest.approx(200, abs=1)
     assert stats.rate == pytest.approx(100.0, rel=1e-6) and stats.jitter < 1e-6
     assert stats.overruns == 0 and stats.errors == 0
-    # 4 joints x 2 register reads x 75 bit times at 400 kHz, while inactive (no writes).
-    assert stats.duration_mean == pytest.approx(8 * 75 / 400_000, rel=0.02)
+    # Inactive (no commands): legacy 4 joints x 2 register reads x 75 bit times at 400 kHz; v2 one
+    # 156-bit transaction per joint (its mailbox carries NONE).
+    bits = 4 * 156 if arm.protocol == "v2" else 8 * 75
+    assert stats.duration_mean == pytest.approx(bits / 400_000, rel=0.02)
     assert bus.monotonic() - t0 == pytest.approx(2.0, abs=0.011)
 
 
@@ -32,12 +34,12 @@ def test_a_slow_cycle_is_counted_as_an_overrun(arm: Arm, bus: SimBus) -> None:
     arm.configure()
     comm = Communicator(arm, frequency=100.0, realtime_priority=None)
     comm.run_for(0.1)
-    read = arm.read
+    cycle = arm.cycle
 
-    def slow_read() -> None:
-        read()
+    def slow_cycle() -> None:
+        cycle()
         bus.sleep(0.015)  # longer than the 10 ms period
-    arm.read = slow_read  # type: ignore[method-assign]
+    arm.cycle = slow_cycle  # type: ignore[method-assign]
     comm.run_for(0.1)
     assert comm.stats.overruns >= 3
     assert comm.stats.duration_max >= 0.015 and comm.stats.period_max >= 0.015
@@ -50,9 +52,15 @@ def test_the_bus_limits_the_rate_with_four_joints_at_500_hz(arm: Arm) -> None:
     arm.switch_modes(start=[f"{name}/position" for name in arm.joints])
     comm = Communicator(arm, frequency=500.0, realtime_priority=None)
     comm.run_for(0.5)
-    # A 4-joint cycle with writes needs 4 x 225 bit times = 2.25 ms at 400 kHz: more than 2 ms.
-    assert comm.stats.overruns == comm.stats.cycles
-    assert comm.stats.rate == pytest.approx(400_000 / 900, rel=0.02)
+    if arm.protocol == "legacy":
+        # A 4-joint cycle with writes needs 4 x 225 bit times = 2.25 ms at 400 kHz: more than 2 ms.
+        assert comm.stats.overruns == comm.stats.cycles
+        assert comm.stats.rate == pytest.approx(400_000 / 900, rel=0.02)
+    else:
+        # v2: 4 x 156 bit times = 1.56 ms: 500 Hz fits; the ceiling is 641 Hz.
+        # (the first cycle also refreshes the flags, older than 20 ms after the homing)
+        assert comm.stats.overruns <= 1 and comm.stats.rate == pytest.approx(500.0, rel=1e-3)
+        assert comm.stats.duration_mean == pytest.approx(4 * 156 / 400_000, rel=0.02)
 
 
 def test_snapshots_reach_subscribers_and_a_slow_one_never_blocks_the_loop(arm: Arm) -> None:

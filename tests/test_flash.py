@@ -27,7 +27,7 @@ import pytest
 
 from bioscara import cli, flash, mpboard
 from bioscara.config import load_config
-from bioscara.firmware.protocol import SPEC_HASH
+from bioscara.firmware.protocol import PROTOCOL_VERSION, SPEC_HASH
 from bioscara.firmware.version import FIRMWARE_VERSION
 from bioscara.hardware import open_arm_bus
 
@@ -274,7 +274,7 @@ def sim_bus():
 def test_the_version_check_over_the_simulated_bus_passes(sim_bus):
     check = flash.check_identity(sim_bus, "J1", 0x11)
     assert check.ok, check.problems
-    assert check.found == {"protocol": 1, "firmware": flash.FIRMWARE, "joint_id": 1,
+    assert check.found == {"protocol": PROTOCOL_VERSION, "firmware": flash.FIRMWARE, "joint_id": 1,
                            "spec_hash": f"0x{SPEC_HASH:08x}"}
 
 

@@ -81,6 +81,7 @@ def test_a_script_reads_and_writes_exactly_these_frames(expert: Console, recorde
     assert "j1 SETCURRENT 0: accepted  [NOTHOMED|NOTENABLED]" in expert.out
 
 
+@pytest.mark.parametrize("arm", ["legacy"], indirect=True)  # the exact legacy frames
 def test_read_all_and_lifecycle_use_the_arms_joints(console: Console, recorder: Recorder, arm: Arm) -> None:
     console.ok("configure", "read all IDENTITY")
     assert arm.lifecycle is Lifecycle.INACTIVE

@@ -11,6 +11,13 @@ from .core import JointController
 from .debug import DebugConsole, UsbStdio
 from .i2c_target import I2CTargetAdapter
 from .log import Logger
+from .protocol_v2 import MEM_ADDRSIZE
+from .v2 import ProtocolSwitch
+
+# RP2040 DW_apb_i2c IC_STATUS of I2C0/I2C1 and its SLV_ACTIVITY bit: set while a transaction
+# addressed to the target is in progress. The v2 swap waits for it to clear.
+_RP2040_IC_STATUS = (0x40044070, 0x40048070)
+_SLV_ACTIVITY = 0x40
 
 
 def build_motor(cfg):
@@ -35,18 +42,47 @@ def build(machine, config_path=config.CONFIG_FILE, clock=None, write=None):
     return core, cfg, log
 
 
+def bus_activity_probe(machine, bus):
+    """A callable that is true while a transaction is in progress on target `bus`: the RP2040's
+    activity bit; elsewhere none (always false: a torn state block is then caught by its CRC)."""
+    import sys
+    mem32 = getattr(machine, "mem32", None)
+    if sys.platform == "rp2" and mem32 is not None and "RP2040" in getattr(sys.implementation, "_machine", ""):
+        status = _RP2040_IC_STATUS[bus]
+
+        def active():
+            return mem32[status] & _SLV_ACTIVITY
+        return active
+
+    def never():
+        return False
+    return never
+
+
 def join_bus(machine, core, cfg, log):
-    """Become an I2C target once booted, as the original registered its handlers last."""
+    """Become an I2C target once booted, as the original registered its handlers last. Serves the
+    legacy map; the returned ProtocolSwitch moves to v2 when the host asks (main loop)."""
     if cfg.address is None:
         log.error("no valid I2C address configured: not joining the bus")
         return None
+    i2c = cfg.i2c
+
+    def make_target(mem):
+        pins = {"scl": machine.Pin(i2c.scl), "sda": machine.Pin(i2c.sda)}
+        if mem is None:
+            return machine.I2CTarget(i2c.bus, cfg.address, **pins)
+        return machine.I2CTarget(i2c.bus, cfg.address, mem=mem, mem_addrsize=MEM_ADDRSIZE, **pins)
+
+    def legacy_adapter(target):
+        return I2CTargetAdapter(core, target, i2c.whole_reply_writes)
+
+    probe = bus_activity_probe(machine, i2c.bus)
     try:
-        target = machine.I2CTarget(cfg.i2c.bus, cfg.address, scl=machine.Pin(cfg.i2c.scl),
-                                   sda=machine.Pin(cfg.i2c.sda))
-        return I2CTargetAdapter(core, target, cfg.i2c.whole_reply_writes)
+        return ProtocolSwitch(core, cfg.address, make_target, legacy_adapter,
+                              (machine.disable_irq, machine.enable_irq), lambda target: probe)
     except (ValueError, OSError, TypeError) as exc:
         log.error("cannot join the bus as I2C target 0x%02x on I2C%d (SDA %d, SCL %d): %r"
-                  % (cfg.address, cfg.i2c.bus, cfg.i2c.sda, cfg.i2c.scl, exc))
+                  % (cfg.address, i2c.bus, i2c.sda, i2c.scl, exc))
         return None
 
 
@@ -58,7 +94,7 @@ def run(config_path=config.CONFIG_FILE):
     while not core.ready:
         core.service()
         time.sleep_ms(1)
-    adapter = join_bus(machine, core, cfg, log)
+    switch = join_bus(machine, core, cfg, log)
     stdio = UsbStdio()
     log.set_writer(stdio.write)
     debug = DebugConsole(core, stdio.read, stdio.write)
@@ -66,6 +102,8 @@ def run(config_path=config.CONFIG_FILE):
     try:
         while True:
             core.service()
+            if switch is not None:
+                switch.service()
             try:
                 debug.poll()
             except Exception as exc:  # the console must never end the control loop
@@ -78,14 +116,14 @@ def run(config_path=config.CONFIG_FILE):
     except KeyboardInterrupt:
         # Ctrl-C (mpremote, or a stray byte): leave the joint safe before the REPL takes over,
         # since the deadman and stall detection stop with this loop.
-        shut_down(core, adapter, log)
+        shut_down(core, switch, log)
         raise
 
 
-def shut_down(core, adapter, log):
+def shut_down(core, switch, log):
     """Stop the motor, cut its current and leave the bus."""
-    if adapter is not None:
-        adapter.deinit()
+    if switch is not None:
+        switch.deinit()
     if core.hal is not None and not core.disabled:
         try:
             core.hal.stop(True)

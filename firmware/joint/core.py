@@ -20,7 +20,7 @@ from .loop import MainLoop
 from .protocol import (
     ACK, BY_ADDR, CHECKORIENTATION, CLEARSTALL, DISABLECLOSEDLOOP, DISABLESTALLGUARD,
     ENABLECLOSEDLOOP, ENABLESTALLGUARD, FLAG_BUSY, FLAGS_AT_BOOT, HOME, IDENTITY, MOVEANGLE,
-    MOVESTEPS, MOVETOANGLE, PING, PROTOCOL_VERSION, SETBRAKEMODE, SETCURRENT, SETHOLDCURRENT,
+    MOVESTEPS, MOVETOANGLE, PING, PROTOCOL, PROTOCOL_VERSION, SETBRAKEMODE, SETCURRENT, SETHOLDCURRENT,
     SETMAXACCELERATION, SETMAXDECELERATION, SETMAXVELOCITY, SETRPM, SETUP, SPEC_HASH,
 )
 from .stall import StallDetector
@@ -68,11 +68,12 @@ class JointController(IrqPath, MainLoop, Handlers, Tasks, Supervisor):
             if reg is not None and reg.readable:
                 self._cache[addr] = bytearray(reg.rsize)
         self._cache[PING][0] = ACK
+        self._cache_values = [0, 0, 0, 0]  # what the float caches hold (HAL units)
+        self._f32_scratch = bytearray(4)
         struct.pack_into("<BBBBBI", self._cache[IDENTITY], 0, PROTOCOL_VERSION, FIRMWARE_VERSION[0],
                          FIRMWARE_VERSION[1], FIRMWARE_VERSION[2], cfg.joint_id, SPEC_HASH)
         # IRQ-side state: the reply the next read gets, the command queue, counters.
-        self._reply_reg = BY_ADDR[PING]
-        self._reply_err = 0
+        self._init_irq_tables()
         self._queue = bytearray(QUEUE_SLOTS * SLOT)
         self._q_in = 0  # written by the IRQ path only
         self._q_out = 0  # written by the main loop only
@@ -111,7 +112,9 @@ class JointController(IrqPath, MainLoop, Handlers, Tasks, Supervisor):
             CLEARSTALL: self._clear_stall, SETBRAKEMODE: self._set_brake_mode,
             ENABLECLOSEDLOOP: self._enable_closed_loop, DISABLECLOSEDLOOP: self._disable_closed_loop,
             CHECKORIENTATION: self._check_orientation, HOME: self._home,
+            PROTOCOL: self._select_protocol,
         }
+        self.protocol_request = 0  # a PROTOCOL write (main loop); the protocol switch (v2.py) acts on it
         if self.disabled:
             for problem in cfg.errors:
                 log.error(problem)
@@ -120,3 +123,6 @@ class JointController(IrqPath, MainLoop, Handlers, Tasks, Supervisor):
             self.ready = True
         else:
             self._start_task("boot", self._boot())
+
+    def _select_protocol(self, q, off):
+        self.protocol_request = q[off]

@@ -13,6 +13,7 @@ simulator serves the same console on a pseudo-terminal.
 """
 
 from . import log as L
+from .fixed import ANGLE_Q, RPM_Q
 from .protocol import BY_ADDR, describe_flags
 
 try:
@@ -31,6 +32,8 @@ HELP = (
 )
 _CHUNK = const(16)
 _LINE = const(64)
+_ANGLE = 1 << ANGLE_Q
+_RPM = 1 << RPM_Q
 
 
 class UsbStdio:
@@ -146,14 +149,14 @@ class DebugConsole:
             cfg.joint, cfg.address or 0, describe_flags(core.flags), core.task_name or "-",
             _yes(core.ready), _yes(core.disabled)))
         write("setpoints  position %.3f deg  velocity %.3f rpm  positioning %s" % (
-            core.q_set, core.qd_set, _yes(core.positioning)))
+            core.q_set / _ANGLE, core.qd_set / _RPM, _yes(core.positioning)))
         hal = core.hal
         if hal is None:
             write("motor  unavailable")
         else:
             try:
-                write("motor  position %.3f deg  velocity %.3f rpm  pid error %.1f usteps" % (
-                    hal.angle_moved(), hal.encoder_rpm(), hal.pid_error()))
+                write("motor  position %.3f deg  velocity %.3f rpm  pid error %d usteps" % (
+                    hal.angle_moved() / _ANGLE, hal.encoder_rpm() / _RPM, hal.pid_error()))
             except Exception as exc:  # a failed driver must not take the console down
                 write("motor  error %r" % (exc,))
         write("currents  drive %d %%  hold %d %%  closed loop %s  stallguard %s (sensitivity %d)" % (

@@ -1,17 +1,23 @@
 """Motor hardware abstraction: what the joint core needs from a stepper with an encoder.
 
-Units are those of the uStepper S32 library the original firmware drove, so the stall and homing
-constants keep their meaning on every backend:
+Quantities are those of the uStepper S32 library the original firmware drove, so the stall and
+homing constants keep their meaning on every backend, but every value crossing this interface is
+an integer in fixed point (`fixed.py`), because the core calls it at 1 kHz and a float is a heap
+object on the board:
 
-* full steps: 200 per revolution; microsteps ("usteps"): 1/256 full step, 51200 per revolution;
-* angles in motor degrees, speeds in motor RPM (encoder-measured unless stated otherwise);
-* PID error in usteps: driver position minus encoder position, bounded by the closed-loop
+* microsteps ("usteps", int): 1/256 full step, 51200 per revolution; full steps: 200 per rev;
+* angles: motor degrees in Q12 (x 4096, fixed.ANGLE_Q);
+* speeds: motor rpm in Q16 (x 65536, fixed.RPM_Q), encoder-measured unless stated otherwise;
+* max velocity / acceleration: full steps/s and full steps/s^2 in Q4 (x 16, fixed.STEPS_Q);
+* PID error: int usteps, driver position minus encoder position, bounded by the closed-loop
   re-synchronisation (see ustepper-model.md section 3.3);
 * currents in percent of the driver's full scale.
 
 Every call returns promptly: motion commands start a ramp, `stop` starts a deceleration. Blocking
 sequences (homing, orientation check) are built by the core from these primitives.
-`update()` is called once per main-loop iteration before any getter.
+`update()` is called once per main-loop iteration before any getter; it and the getters must not
+allocate on the board. A backend that models in floats converts at its boundary
+(sim/fixed_hal.py).
 """
 
 FULL_STEPS_PER_REV = 200
@@ -52,7 +58,7 @@ class MotorHAL:
         raise NotImplementedError
 
     def set_rpm(self, rpm):
-        """Velocity mode at `rpm` (sign is direction), ramping with the max acceleration."""
+        """Velocity mode at `rpm` (Q16; sign is direction), ramping with the max acceleration."""
         raise NotImplementedError
 
     def move_steps(self, usteps):
@@ -60,11 +66,11 @@ class MotorHAL:
         raise NotImplementedError
 
     def move_angle(self, degrees):
-        """Positioning mode, relative move of `degrees`."""
+        """Positioning mode, relative move of `degrees` (Q12)."""
         raise NotImplementedError
 
     def move_to_angle(self, degrees):
-        """Positioning mode to an absolute encoder angle (degrees since home)."""
+        """Positioning mode to an absolute encoder angle (degrees Q12 since home)."""
         raise NotImplementedError
 
     def stop(self, hard=True):
@@ -90,14 +96,14 @@ class MotorHAL:
         raise NotImplementedError
 
     def angle_moved(self):
-        """Encoder angle since home, degrees."""
+        """Encoder angle since home, degrees Q12."""
         raise NotImplementedError
 
     def encoder_rpm(self):
         raise NotImplementedError
 
     def driver_rpm(self):
-        """Speed of the ramp generator, RPM."""
+        """Speed of the ramp generator, rpm Q16."""
         raise NotImplementedError
 
     def pid_error(self):
@@ -105,4 +111,10 @@ class MotorHAL:
 
     def position_reached(self):
         """True when a positioning move has arrived (False in velocity mode while moving)."""
+        raise NotImplementedError
+
+    def field_position(self):
+        """Usteps the driver has advanced the coil field since begin(), an int wrapping at 2**30:
+        the driver position without the closed loop's relabels (set_home does not reset it).
+        Stall and homing evidence compare it with the encoder."""
         raise NotImplementedError

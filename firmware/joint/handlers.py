@@ -1,15 +1,17 @@
 """The joint core's register handlers: one per command register, run by the main loop.
 
 Each gets the queue and the payload offset of its slot (`loop.py` drains the queue in order).
+Float32 payloads are decoded to the HAL's fixed-point units on their bits (`fixed.py`): a host
+streaming SETRPM or MOVETOANGLE at its cycle rate creates no float on the board.
 """
 
-import struct
-
-_DEG_TO_FULL_STEPS = 200.0 / 360.0
+from .fixed import ANGLE_Q, RPM_Q, STEPS_Q, f32_to_q, i32, muldiv
 
 
-def _f32(buf, off):
-    return struct.unpack_from("<f", buf, off)[0]
+def _full_steps(q, off):
+    """|float32 deg/s (or deg/s^2)| at q[off:] as full steps/s in Q4 (200 full steps a turn)."""
+    value = f32_to_q(q, off, STEPS_Q)
+    return muldiv(value if value >= 0 else -value, 5, 9)
 
 
 class Handlers:
@@ -22,11 +24,11 @@ class Handlers:
         self.hal.set_hold_current(self.hold_current)
         self.hal.move_steps(0)
         self.stallguard = False
-        self.qd_set = 0.0
+        self.qd_set = 0
         self.positioning = False
 
     def _set_rpm(self, q, off):
-        rpm = _f32(q, off)
+        rpm = f32_to_q(q, off, RPM_Q)
         self.qd_set = rpm
         if rpm == 0 or self._may_move():
             self.hal.set_rpm(rpm)
@@ -34,23 +36,23 @@ class Handlers:
 
     def _move_steps(self, q, off):
         if self._may_move():
-            self.hal.move_steps(struct.unpack_from("<i", q, off)[0])
+            self.hal.move_steps(i32(q, off))
             self._positioning_started()
 
     def _move_angle(self, q, off):
         if self._may_move():
-            self.hal.move_angle(_f32(q, off))
+            self.hal.move_angle(f32_to_q(q, off, ANGLE_Q))
             self._positioning_started()
 
     def _move_to_angle(self, q, off):
-        self.q_set = _f32(q, off)
+        self.q_set = f32_to_q(q, off, ANGLE_Q)
         if self._may_move():
             self.hal.move_to_angle(self.q_set)
             self._positioning_started()
 
     def _positioning_started(self):
         self.positioning = True
-        self.qd_set = 0.0
+        self.qd_set = 0
 
     def _set_current(self, q, off):
         self.drive_current = q[off]
@@ -61,15 +63,15 @@ class Handlers:
         self.hal.set_hold_current(self.hold_current)
 
     def _set_max_acceleration(self, q, off):
-        value = abs(_f32(q, off)) * _DEG_TO_FULL_STEPS
+        value = _full_steps(q, off)
         self.hal.set_max_acceleration(value)
         self.hal.set_max_deceleration(value)
 
     def _set_max_deceleration(self, q, off):
-        self.hal.set_max_deceleration(abs(_f32(q, off)) * _DEG_TO_FULL_STEPS)
+        self.hal.set_max_deceleration(_full_steps(q, off))
 
     def _set_max_velocity(self, q, off):
-        self.hal.set_max_velocity(abs(_f32(q, off)) * _DEG_TO_FULL_STEPS)
+        self.hal.set_max_velocity(_full_steps(q, off))
 
     def _enable_stallguard(self, q, off):
         self.stall.sensitivity = q[off]
@@ -96,7 +98,7 @@ class Handlers:
     def _check_orientation(self, q, off):
         # The sign would only swap what counts as inverted: a negative angle would flip a
         # correctly wired motor into closed-loop runaway.
-        self._start_task("CHECKORIENTATION", self._orientation(abs(_f32(q, off))))
+        self._start_task("CHECKORIENTATION", self._orientation(abs(f32_to_q(q, off, ANGLE_Q))))
 
     def _home(self, q, off):
         self._start_task("HOME", self._homing(q[off], q[off + 1], q[off + 2], q[off + 3]))

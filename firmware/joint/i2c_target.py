@@ -13,6 +13,7 @@ Event handling (see reference/i2c-facts.md section 1.4):
   which gets a pad byte. END_READ closes the transaction.
 """
 
+from .irq import COUNTER_MASK
 from .protocol import MAX_FRAME, MAX_REPLY
 
 try:
@@ -53,30 +54,36 @@ class I2CTargetAdapter:
         self._pad = bytearray(1)
         self._reply_len = 0
         self._reply_pos = 0
-        self._handler = self._irq  # a bound method, created once
-        target.irq(self._handler, trigger=IRQ_ALL, hard=True)
+        # Bound methods made once: looking them up in the IRQ would walk the core's mixins.
+        self._on_frame = core.on_frame
+        self._reply_into = core.reply_into
+        self._handler = self._irq
+        self._events = target.irq(self._handler, trigger=IRQ_ALL, hard=True)  # the irq object
 
     def deinit(self):
         self._target.irq(None, trigger=0, hard=True)
 
     def _irq(self, target):
-        events = target.irq().flags()
+        events = self._events.flags()
         if events & IRQ_ADDR_MATCH_WRITE:
             self._frame_len = 0
         if events & IRQ_WRITE_REQ:
             chunk = self._chunk
             frame = self._frame
+            length = self._frame_len
             n = target.readinto(chunk)
             for i in range(n):
-                if self._frame_len < MAX_FRAME:
-                    frame[self._frame_len] = chunk[i]
-                self._frame_len += 1
+                if length < MAX_FRAME:
+                    frame[length] = chunk[i]
+                length += 1
+            self._frame_len = length
         if events & IRQ_END_WRITE:
-            self._core.on_frame(self._frame, self._frame_len)
+            self._on_frame(self._frame, self._frame_len)
             self._frame_len = 0
-            self._core.host_seen()
+            core = self._core
+            core.transactions = (core.transactions + 1) & COUNTER_MASK  # host_seen(), inlined
         if events & IRQ_ADDR_MATCH_READ:
-            self._reply_len = self._core.reply_into(self._reply)
+            self._reply_len = self._reply_into(self._reply)
             self._reply_pos = 0
         if events & IRQ_READ_REQ:
             pos = self._reply_pos
@@ -90,4 +97,5 @@ class I2CTargetAdapter:
             else:
                 target.write(self._pad)
         if events & IRQ_END_READ:
-            self._core.host_seen()
+            core = self._core
+            core.transactions = (core.transactions + 1) & COUNTER_MASK

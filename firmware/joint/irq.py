@@ -7,7 +7,7 @@ a preallocated queue slot and answers from reply bytes the main loop packed in a
 """
 
 from .protocol import (
-    BY_ADDR, FLAG_ERROR, FLAG_NOTENABLED, FLAG_STALL, HOMEOFFSET, LASTERROR, MAX_FRAME, REJECT_BUSY,
+    BY_ADDR, FLAG_ERROR, FLAG_NOTENABLED, FLAG_STALL, HOMEOFFSET, LASTERROR, MAX_FRAME, PING, REJECT_BUSY,
     REJECT_DISABLED, REJECT_NONE, REJECT_QUEUE_FULL, REJECT_UNKNOWN_REGISTER, STOP,
 )
 
@@ -31,7 +31,22 @@ COUNTER_MASK = const(0x1FFFFFFF)
 
 
 class IrqPath:
-    """JointController's IRQ-side methods (mixed into it): no allocation anywhere here."""
+    """JointController's IRQ-side methods (mixed into it): no allocation anywhere here.
+
+    A read is served from `_reply_cache` (the selected register's reply bytes) and `_reply_n`
+    (their count, 0 for a flags-only reply), looked up once when the register is selected.
+    """
+
+    def _init_irq_tables(self):
+        """Per-address reply sizes (0: not readable), so selecting a register is one lookup."""
+        sizes = bytearray(256)
+        for addr in range(256):
+            if self._cache[addr] is not None:
+                sizes[addr] = len(self._cache[addr])
+        self._rsize = sizes
+        self._reply_cache = self._cache[PING]
+        self._reply_n = sizes[PING]
+        self._reply_err = 0
 
     def host_seen(self):
         """A transaction addressed to this joint ended (feeds the deadman)."""
@@ -42,13 +57,16 @@ class IrqPath:
         if n == 0:
             return  # address probe (bus scan)
         addr = frame[0]
+        if n == 1:
+            size = self._rsize[addr]
+            if size:
+                self._reply_cache = self._cache[addr]
+                self._reply_n = size
+                self._reply_err = 0
+                return
         reg = BY_ADDR[addr]
         if reg is None:
             self._reject(addr, REJECT_UNKNOWN_REGISTER)
-            return
-        if n == 1 and reg.readable:
-            self._reply_reg = reg
-            self._reply_err = 0
             return
         reason = reg.check_write(frame, 1, n - 1)
         if reason == REJECT_NONE:
@@ -89,7 +107,7 @@ class IrqPath:
                 self._blocking_stops = self.stops
                 self._blocking_in = (self._blocking_in + 1) & COUNTER_MASK
             self._q_in = (self._q_in + 1) & COUNTER_MASK
-        self._reply_reg = None
+        self._reply_n = 0
         self._reply_err = 0
 
     def _blocking_live(self):
@@ -99,7 +117,7 @@ class IrqPath:
         return self._task is not None and self._task_stops == self.stops
 
     def _reject(self, addr, reason):
-        self._reply_reg = None
+        self._reply_n = 0
         self._reply_err = FLAG_ERROR
         self.rejects = (self.rejects + 1) & 0xFFFF
         cache = self._cache[LASTERROR]
@@ -110,14 +128,12 @@ class IrqPath:
 
     def reply_into(self, out):
         """Write the reply (payload + flags) right-aligned at the end of `out`; return its length."""
-        end = len(out)
-        out[end - 1] = self.flags | self._reply_err
-        reg = self._reply_reg
-        if reg is None:
-            return 1
-        n = reg.rsize
-        cache = self._cache[reg.addr]
-        start = end - 1 - n
-        for i in range(n):
-            out[start + i] = cache[i]
+        end = len(out) - 1
+        out[end] = self.flags | self._reply_err
+        n = self._reply_n
+        if n:
+            cache = self._reply_cache
+            start = end - n
+            for i in range(n):
+                out[start + i] = cache[i]
         return n + 1

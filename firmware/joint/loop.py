@@ -6,8 +6,7 @@ supervision (`supervise.py`) and packs the reply caches the IRQ serves. Its writ
 reads are wrapped in `critical` sections.
 """
 
-import struct
-
+from .fixed import ANGLE_Q, RPM_Q, pack_q
 from .irq import COUNTER_MASK, MOTION_BLOCKED, QUEUE_SLOTS, SLOT, SLOT_FLAGS, SLOT_HALTS, SLOT_STOPS
 from .protocol import (
     ANGLEMOVED, BY_ADDR, FLAG_BUSY, FLAG_NOTENABLED, GETDRIVERRPM, GETENCODERRPM, GETPIDERROR,
@@ -50,21 +49,21 @@ class MainLoop:
         self.log.error("motor fault, joint disabled until reset: %r" % (exc,))
 
     def _service_motor(self, now):
-        diff = self.clock.ticks_diff
+        clock = self.clock
         self.hal.update()
         if self.stops != self._stops_seen:
             self._stops_seen = self.stops
             self.hal.set_rpm(0)
-            self.qd_set = 0.0
+            self.qd_set = 0
             self.positioning = False
         while self._q_out != self._q_in:
             self._apply_next()
-        if self._task is not None and (diff(now, self._task_wake) >= 0 or self._cancelled()):
+        if self._task is not None and (clock.ticks_diff(now, self._task_wake) >= 0 or self._cancelled()):
             self._step_task(now)
         if self.positioning and self.hal.position_reached():
             self.positioning = False
-        if diff(now, self._next_stall_ms) >= 0:
-            self._next_stall_ms = self.clock.ticks_add(now, self._stall_period_ms)
+        if clock.ticks_diff(now, self._next_stall_ms) >= 0:
+            self._next_stall_ms = clock.ticks_add(now, self._stall_period_ms)
             self._check_stall()
         self._check_deadman(now)
         self._refresh_caches()
@@ -80,14 +79,36 @@ class MainLoop:
         self._irq_on(state)
 
     def _refresh_caches(self):
+        """Pack the HAL's values into the reply caches, each only when it changed."""
         hal = self.hal
-        angle, rpm, driver, error = hal.angle_moved(), hal.encoder_rpm(), hal.driver_rpm(), hal.pid_error()
+        last = self._cache_values
         cache = self._cache
+        value = hal.angle_moved()
+        if value != last[0]:
+            last[0] = value
+            self._store_f32(cache[ANGLEMOVED], value, ANGLE_Q)
+        value = hal.encoder_rpm()
+        if value != last[1]:
+            last[1] = value
+            self._store_f32(cache[GETENCODERRPM], value, RPM_Q)
+        value = hal.driver_rpm()
+        if value != last[2]:
+            last[2] = value
+            self._store_f32(cache[GETDRIVERRPM], value, RPM_Q)
+        value = hal.pid_error()
+        if value != last[3]:
+            last[3] = value
+            self._store_f32(cache[GETPIDERROR], value, 0)
+
+    def _store_f32(self, dest, value, q):
+        """float32(value / 2**q) into a reply cache: packed aside, copied in one critical section."""
+        scratch = self._f32_scratch
+        pack_q(scratch, 0, value, q)
         state = self._irq_off()
-        struct.pack_into("<f", cache[ANGLEMOVED], 0, angle)
-        struct.pack_into("<f", cache[GETENCODERRPM], 0, rpm)
-        struct.pack_into("<f", cache[GETDRIVERRPM], 0, driver)
-        struct.pack_into("<f", cache[GETPIDERROR], 0, error)
+        dest[0] = scratch[0]
+        dest[1] = scratch[1]
+        dest[2] = scratch[2]
+        dest[3] = scratch[3]
         self._irq_on(state)
 
     def _apply_next(self):
@@ -124,6 +145,6 @@ class MainLoop:
         self.flags |= flag
         self.halts = (self.halts + 1) & 0xFF
         self._irq_on(state)
-        self.qd_set = 0.0
+        self.qd_set = 0
         self.positioning = False
         return True

@@ -27,7 +27,9 @@ try:
 except ImportError:
     from zlib import crc32
 
-PROTOCOL_VERSION = const(1)
+from .protocol_v2 import spec_bytes as _v2_spec_bytes
+
+PROTOCOL_VERSION = const(2)  # the newest protocol this firmware serves (IDENTITY); see protocol_v2
 
 ACK = const(0x4F)  # 'O', the PING payload
 NACK = const(0x4E)  # 'N', declared by the original, never sent
@@ -276,6 +278,7 @@ HOME = const(0x2D)
 HOMEOFFSET = const(0x2E)
 IDENTITY = const(0x30)
 LASTERROR = const(0x31)
+PROTOCOL = const(0x32)
 
 BRAKE_FREEWHEEL = const(0)
 BRAKE_COOLBRAKE = const(1)
@@ -349,6 +352,9 @@ REGISTERS = (
     Register(LASTERROR, "LASTERROR",
              read=(Field("reason", U8), Field("register", U8), Field("count", U16)),
              doc="extension: why the last frame was rejected, and how many were"),
+    Register(PROTOCOL, "PROTOCOL", write=(Field("protocol", U8, "1 legacy, 2 v2 memory map", 1, 2),),
+             doc="extension: 2 makes the joint serve the v2 memory map (protocol_v2.py) from the "
+                 "next main-loop pass; 1 (also a v2 command) or host silence returns it here"),
 )
 
 BY_ADDR = [None] * 256
@@ -391,6 +397,7 @@ def spec_hash(registers=REGISTERS):
                 out.extend(f.unit.encode())
                 out.append(0)
                 out.extend(struct.pack("<ff", f.lo, f.hi))
+    out.extend(_v2_spec_bytes())
     return crc32(bytes(out)) & 0xFFFFFFFF
 
 

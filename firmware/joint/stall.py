@@ -9,6 +9,7 @@ speed in motor rad/s from the encoder. The filtered error above the threshold is
 from .filters import Lowpass
 
 RPM_PER_RAD_S = 9.549296596425384
+_RPM_Q16_PER_RAD_S = RPM_PER_RAD_S * 65536
 
 
 class StallDetector:
@@ -34,8 +35,10 @@ class StallDetector:
         return thr
 
     def update(self, pid_error, encoder_rpm, set_rpm):
-        """Feed one sample; True when it detects a stall (the filter is then reset)."""
-        speed = encoder_rpm / RPM_PER_RAD_S
+        """Feed one sample: PID error in usteps, speeds in rpm Q16 (fixed.RPM_Q, the HAL's
+        units); True when it detects a stall (the filter is then reset)."""
+        speed = encoder_rpm / _RPM_Q16_PER_RAD_S
+        set_rpm = set_rpm / 65536.0
         raw = abs(pid_error)
         sample = self.last if raw - self.last > self._cfg.spike_limit else raw
         filtered = self._filter.update(sample)

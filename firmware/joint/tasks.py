@@ -4,6 +4,7 @@ A task holds BUSY while it runs; the main loop steps it when its wait is over (e
 how many milliseconds to wait) or a STOP cancelled it.
 """
 
+from .fixed import ANGLE_Q, RPM_Q, STEPS_Q, to_q
 from .protocol import FLAG_BUSY, FLAG_NOTHOMED, FLAG_STALL, FLAGS_AT_BOOT
 
 try:
@@ -68,11 +69,12 @@ class Tasks:
         hal.begin()
         hal.enable_closed_loop()
         self.closed_loop = True
-        hal.set_max_acceleration(boot.max_acceleration)
-        hal.set_max_deceleration(boot.max_acceleration)
-        hal.set_max_velocity(boot.max_velocity)
-        hal.set_control_threshold(boot.control_threshold)
-        yield from self._orientation(boot.orientation_check)
+        accel = to_q(boot.max_acceleration, STEPS_Q)
+        hal.set_max_acceleration(accel)
+        hal.set_max_deceleration(accel)
+        hal.set_max_velocity(to_q(boot.max_velocity, STEPS_Q))
+        hal.set_control_threshold(to_q(boot.control_threshold, 0))
+        yield from self._orientation(to_q(boot.orientation_check, ANGLE_Q))
         hal.stop(True)
         hal.set_current(0)
         hal.set_hold_current(0)
@@ -92,7 +94,8 @@ class Tasks:
         return True
 
     def _orientation(self, degrees):
-        """The stepper library's checkOrientation: +/- moves until two agree on the direction.
+        """The stepper library's checkOrientation: +/- moves of `degrees` (Q12) until two agree.
+
 
         Unlike the library it gives up on a STOP or a move that never arrives (the library
         waited forever), keeping the driver direction it had.
@@ -138,7 +141,7 @@ class Tasks:
         yield _HOMING_SETTLE_MS
         homed = False
         if not self._cancelled():
-            hal.set_rpm(speed if direction else -speed)
+            hal.set_rpm((speed if direction else -speed) << RPM_Q)
             hal.set_current(current)
             while not self._cancelled():
                 if abs(hal.pid_error()) > sensitivity:

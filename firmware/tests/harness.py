@@ -2,6 +2,7 @@
 
 from joint import config, protocol
 from joint.core import JointController
+from joint.fixed import ANGLE_Q, RPM_Q, to_q
 from joint.hal import MotorHAL
 from joint.i2c_target import I2CTargetAdapter
 from joint.log import Logger
@@ -10,7 +11,10 @@ from joint.sim.i2c_target import FakeI2CTarget
 
 
 class RecordingMotor(MotorHAL):
-    """A motor double that records every command; getters return settable values."""
+    """A motor double that records every command; getters return settable values.
+
+    The HAL speaks fixed point (hal.py); this double records and takes plain units (degrees,
+    rpm, full steps/s, usteps) so the tests read like the protocol."""
 
     def __init__(self):
         self.calls = []
@@ -43,26 +47,27 @@ class RecordingMotor(MotorHAL):
         self._record("set_control_threshold", usteps)
 
     def set_max_velocity(self, full_steps_per_s):
-        self._record("set_max_velocity", full_steps_per_s)
+        self._record("set_max_velocity", full_steps_per_s / 16)
 
     def set_max_acceleration(self, full_steps_per_s2):
-        self._record("set_max_acceleration", full_steps_per_s2)
+        self._record("set_max_acceleration", full_steps_per_s2 / 16)
 
     def set_max_deceleration(self, full_steps_per_s2):
-        self._record("set_max_deceleration", full_steps_per_s2)
+        self._record("set_max_deceleration", full_steps_per_s2 / 16)
 
     def set_rpm(self, rpm):
-        self._record("set_rpm", rpm)
+        self._record("set_rpm", rpm / 65536)
 
     def move_steps(self, usteps):
         self._record("move_steps", usteps)
 
     def move_angle(self, degrees):
+        degrees = degrees / 4096
         self._record("move_angle", degrees)
         self.angle += self.wiring * degrees
 
     def move_to_angle(self, degrees):
-        self._record("move_to_angle", degrees)
+        self._record("move_to_angle", degrees / 4096)
 
     def stop(self, hard=True):
         self._record("stop", hard)
@@ -83,16 +88,16 @@ class RecordingMotor(MotorHAL):
         self._record("set_inverted", inverted)
 
     def angle_moved(self):
-        return self.angle
+        return to_q(self.angle, ANGLE_Q)
 
     def encoder_rpm(self):
-        return self.rpm
+        return to_q(self.rpm, RPM_Q)
 
     def driver_rpm(self):
-        return self.ramp_rpm
+        return to_q(self.ramp_rpm, RPM_Q)
 
     def pid_error(self):
-        return self.error
+        return to_q(self.error, 0)
 
     def position_reached(self):
         return self.reached

@@ -23,10 +23,10 @@ class Machine:
     def Pin(self, number):
         return number
 
-    def I2CTarget(self, bus, addr, scl=None, sda=None):
+    def I2CTarget(self, bus, addr, scl=None, sda=None, mem=None, mem_addrsize=8):
         if self.fail is not None:
             raise self.fail
-        target = FakeI2CTarget(addr)
+        target = FakeI2CTarget(addr, mem=mem, mem_addrsize=mem_addrsize)
         self.targets.append((bus, addr, scl, sda, target))
         return target
 
@@ -44,8 +44,8 @@ def test_an_invalid_config_starts_disabled_on_the_bus_and_says_why():
     core, cfg, log, lines = _boot('{"joint": "J2", "address": 18, "stall": {"gain": -1}}', machine)
     assert core.disabled and core.ready
     assert any("stall.gain = -1 is out of range" in line for line in lines), lines
-    adapter = app.join_bus(machine, core, cfg, log)
-    assert adapter is not None
+    switch = app.join_bus(machine, core, cfg, log)
+    assert switch is not None
     assert machine.targets[0][4].transfer(bytes([P.PING]), 2) == b"O\x0c", "answers, disabled"
 
 

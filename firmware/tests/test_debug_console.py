@@ -62,12 +62,12 @@ def test_trace_streams_every_stall_detection_sample():
     rig.command("SETUP", 20, 20, 0, 0)
     rig.command("ENABLESTALLGUARD", 5)
     assert console.run("trace on\n")[0].startswith("trace on: " + " ".join(TRACE_COLUMNS))
-    rig.motor.error = 12.5
+    rig.motor.error = 12  # usteps: the HAL reports whole usteps
     rig.run_ms(100)
     samples = [line.split("\t") for line in console.out]
     assert 9 <= len(samples) <= 11, "one sample per 10 ms"
     assert all(len(s) == len(TRACE_COLUMNS) for s in samples)
-    assert samples[-1][0] == "12.50" and samples[-1][-1] == "0"
+    assert samples[-1][0] == "12.00" and samples[-1][-1] == "0"
     assert float(samples[-1][5]) == 50.0, "threshold = sensitivity x 10 at standstill"
     console.out[:] = []
     assert console.run("trace off\n") == ["trace off"]

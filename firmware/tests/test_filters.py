@@ -76,5 +76,5 @@ def test_stall_fires_when_filtered_error_exceeds_threshold_then_resets():
 
 def test_speed_is_converted_from_rpm_to_rad_per_second():
     det = _detector(6)
-    det.update(0.0, 9.549296596425384 * 20, 0.0)
-    assert abs(det.speed - 20.0) < 1e-9 and det.threshold == 150.0
+    det.update(0, round(9.549296596425384 * 20 * 65536), 0)  # rpm in Q16, the HAL's unit
+    assert abs(det.speed - 20.0) < 1e-6 and abs(det.threshold - 150.0) < 1e-6

@@ -15,7 +15,15 @@ from joint.pico.as5600 import AS5600
 from joint.pico.motor import DEFAULTS, PicoStepper, validate_motor_config
 from joint.pico.stepgen import StepGenerator
 from joint.pico.tmc2209 import TMC2209, TMCError
+from joint.fixed import ANGLE_Q, RPM_Q, STEPS_Q, to_q
 from joint.sim.clock import VirtualClock
+
+RPM = 1 << RPM_Q  # the HAL's fixed-point units (hal.py)
+FS = 1 << STEPS_Q
+
+
+def deg(motor):
+    return motor.angle_moved() / (1 << ANGLE_Q)
 
 
 # ---- independent references ----
@@ -416,12 +424,12 @@ def test_as5600_conf_register():
 def test_usteps_per_pulse_and_period_math():
     assert [sg.usteps_per_pulse(m) for m in (256, 16, 1)] == [1, 16, 256]
     raises(ValueError, sg.usteps_per_pulse, 3)
-    assert sg.period_cycles(1000000, 1) == 12  # 12.5 MHz / 1 MHz
-    assert sg.period_cycles(-1000000, 1) == 12  # direction does not matter
-    assert sg.period_cycles(1000000, 16) == 200  # 62 500 pulses/s at 16 microsteps
-    assert sg.period_cycles(10000000, 1) == sg.MIN_PERIOD == 6
-    assert sg.period_cycles(100, 1) == sg.MAX_PERIOD == 0x3FFF + 5
-    assert sg.period_cycles(0, 1) == sg.MAX_PERIOD
+    assert sg.period_cycles(900, 900) == 12  # 1 MHz: 12.5 MHz / 1 MHz
+    assert sg.period_cycles(-900, 900) == 12  # direction does not matter
+    assert sg.period_cycles(625, 10000) == 200  # 62 500 pulses/s (1e6 usteps/s at 16 microsteps)
+    assert sg.period_cycles(9000, 900) == sg.MIN_PERIOD == 6
+    assert sg.period_cycles(1, 10000) == sg.MAX_PERIOD == 0x3FFF + 5  # 100 pulses/s
+    assert sg.period_cycles(0, 900) == sg.MAX_PERIOD
 
 
 def test_burst_words():
@@ -436,14 +444,15 @@ def test_burst_words():
 
 
 def test_plan_burst_truncates_and_clamps():
-    pulses, word = sg.plan_burst(10.9, 1, 0.0009, 1000)
+    pulses, word = sg.plan_burst(10, 1, 900, 1000)
     assert pulses == 10 and sg.burst_cycles(word) <= 0.0009 * sg.SM_FREQ + 5
-    assert sg.plan_burst(-10.9, 1, 0.0009, 1000)[0] == -10
-    assert sg.plan_burst(40.0, 16, 0.0009, 1000)[0] == 2  # whole 16-ustep pulses only
-    assert sg.plan_burst(0.99, 1, 0.0009, 1000) == (0, 0)
-    assert sg.plan_burst(5000.0, 1, 0.0009, 1875)[0] == 1875
-    assert sg.plan_burst(-5000.0, 1, 0.0009, 1875)[0] == -1875
-    assert sg.plan_burst(50.0, 1, 0.0, 0) == (0, 0)
+    assert sg.plan_burst(-10, 1, 900, 1000)[0] == -10
+    assert sg.plan_burst(47, 16, 900, 1000)[0] == 2  # whole 16-ustep pulses only, toward zero
+    assert sg.plan_burst(-47, 16, 900, 1000)[0] == -2
+    assert sg.plan_burst(0, 1, 900, 1000) == (0, 0)
+    assert sg.plan_burst(5000, 1, 900, 1875)[0] == 1875
+    assert sg.plan_burst(-5000, 1, 900, 1875)[0] == -1875
+    assert sg.plan_burst(50, 1, 0, 0) == (0, 0)
 
 
 class _Instr:
@@ -581,30 +590,30 @@ def test_pio_program_emits_the_burst_it_is_given():
 def test_step_generator_counts_only_acknowledged_pulses():
     sm = FakeSM()
     gen = StepGenerator(sm, 256)
-    assert gen.issue(100.7, 0.001) == 100
+    assert gen.issue(100, 1000) == 100
     assert gen.position == 0 and gen.commanded == 100 and not gen.idle()
     gen.poll()
     assert gen.position == 0  # still in the PIO
     sm.finish()
     gen.poll()
-    assert gen.position == 100 and gen.idle()
-    assert gen.issue(100.7, 0.001) == 0  # only a fraction is owed
-    assert gen.issue(40.0, 0.001) == -60
+    assert gen.position == 100 and gen.idle() and gen.field == 100
+    assert gen.issue(100, 1000) == 0  # nothing more is owed
+    assert gen.issue(40, 1000) == -60
     gen.shift(-500)
-    assert gen.commanded == -460 and gen.position == -400
+    assert gen.commanded == -460 and gen.position == -400 and gen.field == 100  # never relabelled
     for _ in range(10):  # the PIO stalls: at most MAX_IN_FLIGHT bursts are queued
-        gen.issue(gen.commanded + 10, 0.001)
+        gen.issue(gen.commanded + 10, 1000)
     assert len(sm.tx) == sg.MAX_IN_FLIGHT
     coarse = StepGenerator(FakeSM(), 16)
-    assert coarse.issue(40.0, 0.001) == 2 and coarse.commanded == 32
+    assert coarse.issue(40, 1000) == 2 and coarse.commanded == 32
 
 
 def test_step_generator_limits_the_rate():
     gen = StepGenerator(FakeSM(), 256, max_rate=100000)
-    assert gen.issue(10 ** 6, 0.001) == 90  # 90 % of 1 ms at 100 kHz
+    assert gen.issue(10 ** 6, 1000) == 90  # 90 % of 1 ms at 100 kHz
     assert abs(gen.max_usteps_per_s() - 90000) < 1e-6
     fast = StepGenerator(FakeSM(), 256, max_rate=10 ** 7)
-    assert fast.issue(10 ** 6, 0.001) == int(0.0009 * sg.SM_FREQ) // sg.MIN_PERIOD
+    assert fast.issue(10 ** 6, 1000) == int(0.0009 * sg.SM_FREQ) // sg.MIN_PERIOD
 
 
 # ---- PicoStepper ----
@@ -620,7 +629,7 @@ def test_begin_configures_the_driver_and_encoder():
     assert b.uart.ifcnt == 7 and b.pin.level == 0
     assert bytes(b.i2c.conf) == bytes([0x03, 0x00])
     m = b.motor
-    assert m.angle_moved() == 0.0 and m.driver_position() == 0 and m.pid_error() == 0.0
+    assert deg(m) == 0.0 and m.driver_position() == 0 and m.pid_error() == 0.0
     assert m.position_reached()
 
 
@@ -652,7 +661,7 @@ def test_move_steps_lands_exactly_with_the_library_profile():
     ticks = b.run_until_reached()
     assert 2030 <= ticks <= 2080  # 2.05 s: 25 600 usteps/s cruise plus 50 ms ramps
     assert m.driver_position() == 51200
-    assert abs(m.angle_moved() - 360.0) < 0.1
+    assert abs(deg(m) - 360.0) < 0.1
     m.move_steps(-512)  # relative to the driver position
     b.run_until_reached()
     assert m.driver_position() == 50688
@@ -660,10 +669,10 @@ def test_move_steps_lands_exactly_with_the_library_profile():
 
 def test_move_angle_rounds_like_the_library():
     b = Bench().begin()
-    b.motor.move_angle(-5.0)  # -711.1 usteps -> -711
+    b.motor.move_angle(to_q(-5.0, ANGLE_Q))  # -711.1 usteps -> -711
     b.run_until_reached()
     assert b.motor.driver_position() == -711
-    b.motor.move_angle(0.0035)  # 0.498 usteps -> 0
+    b.motor.move_angle(to_q(0.0035, ANGLE_Q))  # 0.498 usteps -> 0
     b.tick()
     assert b.motor.position_reached()
 
@@ -673,9 +682,9 @@ def test_move_to_angle_is_absolute_in_the_encoder_frame():
     m = b.motor
     b.rotor = -1280.0  # the rotor slipped 9 degrees back while the closed loop was off
     b.tick()
-    m.move_to_angle(90.0)
+    m.move_to_angle(to_q(90.0, ANGLE_Q))
     b.run_until_reached()
-    assert abs(m.angle_moved() - 90.0) < 0.1  # the encoder reaches 90 degrees
+    assert abs(deg(m) - 90.0) < 0.1  # the encoder reaches 90 degrees
     assert abs(m.driver_position() - (12800 + 1280)) < 13  # the driver frame carries the slip
 
 
@@ -684,8 +693,8 @@ def test_pid_error_sign_and_bounded_resync_on_a_blocked_rotor():
     m = b.motor
     m.enable_closed_loop()
     m.set_control_threshold(15)
-    m.set_max_acceleration(100000)
-    m.set_rpm(10)  # 8533 usteps/s: 8.5 usteps per 1 ms tick
+    m.set_max_acceleration(100000 * FS)
+    m.set_rpm(10 * RPM)  # 8533 usteps/s: 8.5 usteps per 1 ms tick
     b.tick(300)
     free = 0.0
     for _ in range(50):
@@ -699,9 +708,9 @@ def test_pid_error_sign_and_bounded_resync_on_a_blocked_rotor():
         errors.append(m.pid_error())
     assert min(errors[5:]) > 0  # the driver is ahead of the encoder in + direction
     assert max(errors) < 15 + 9 + 12.5  # bounded: re-sync whenever |e| >= threshold
-    assert abs(m.driver_position() - m.angle_moved() * 51200 / 360) < 15 + 9 + 12.5
-    assert abs(m.encoder_rpm()) < 1.0 and abs(m.driver_rpm() - 10.0) < 1e-6
-    m.set_rpm(-10)
+    assert abs(m.driver_position() - deg(m) * 51200 / 360) < 15 + 9 + 12.5
+    assert abs((m.encoder_rpm() / RPM)) < 1.0 and abs((m.driver_rpm() / RPM) - 10.0) < 1e-4
+    m.set_rpm(-10 * RPM)
     b.blocked = False
     b.tick(400)
     b.blocked = True
@@ -712,7 +721,7 @@ def test_pid_error_sign_and_bounded_resync_on_a_blocked_rotor():
 def test_closed_loop_off_freezes_the_error_and_lets_it_grow():
     b = Bench().begin()
     m = b.motor
-    m.set_rpm(10)
+    m.set_rpm(10 * RPM)
     b.blocked = True
     b.tick(100)
     assert m.pid_error() == 0.0  # never ran: stays 0 (library quirk 1)
@@ -735,7 +744,7 @@ def test_positioning_makes_up_slipped_steps():
     b.tick(200)
     b.rotor -= 512  # two full steps lost under load
     b.run_until_reached()
-    assert abs(m.angle_moved() - 90.0) < 0.2  # the target is met in the encoder frame
+    assert abs(deg(m) - 90.0) < 0.2  # the target is met in the encoder frame
     assert abs(b.rotor - 12800) < 13 and m.driver_position() == 12800  # frames re-synchronised
     assert abs(b.emitted - (12800 + 512)) < 13  # the ramp added the lost steps
 
@@ -751,38 +760,38 @@ def test_set_home_zeroes_encoder_and_driver():
     b.tick(30)  # part way
     remaining = 6400 + 1000 - m.driver_position()
     m.set_home()
-    assert m.angle_moved() == 0.0 and m.driver_position() == 0
+    assert deg(m) == 0.0 and m.driver_position() == 0
     b.run_until_reached()
     assert abs(m.driver_position() - remaining) <= 1  # positioning keeps its remaining distance
-    assert abs(m.angle_moved() - remaining / 142.222) < 0.2
+    assert abs(deg(m) - remaining / 142.222) < 0.2
     assert abs(m.pid_error()) < 30  # no spurious correction move (library quirk 4 avoided)
 
 
 def test_set_rpm_speed_estimator_and_stops():
     b = Bench().begin()
     m = b.motor
-    m.set_rpm(60)  # 51 200 usteps/s, ramping at the default 512 000 usteps/s^2
-    b.tick(100)
-    assert abs(m.driver_rpm() - 60.0) < 1e-6
+    m.set_rpm(60 * RPM)  # 51 200 usteps/s, ramping at the default 512 000 usteps/s^2
+    b.tick(101)  # 0.1 s, plus a tick for the Q16 rounding of the acceleration
+    assert abs((m.driver_rpm() / RPM) - 60.0) < 1e-4
     assert not m.position_reached()
     b.tick(900)
-    assert abs(m.encoder_rpm() - 60.0) < 0.6
+    assert abs((m.encoder_rpm() / RPM) - 60.0) < 0.6
     ticks = 0
     m.stop(True)  # about 2.98e6 usteps/s^2: 17 ms from 60 rpm
-    while m.driver_rpm() != 0.0:
+    while (m.driver_rpm() / RPM) != 0.0:
         b.tick()
         ticks += 1
     assert 16 <= ticks <= 19
     b.tick(2)
     assert m.position_reached()
-    m.set_rpm(-30)
+    m.set_rpm(-30 * RPM)
     b.tick(300)
     ticks = 0
     m.stop(False)  # soft: the restored 512 000 usteps/s^2, 50 ms from 30 rpm
     b.tick()
-    m.set_max_velocity(200)  # a new limit does not restart a stopping motor
+    m.set_max_velocity(200 * FS)  # a new limit does not restart a stopping motor
     ticks = 1
-    while m.driver_rpm() != 0.0:
+    while (m.driver_rpm() / RPM) != 0.0:
         b.tick()
         ticks += 1
     assert 49 <= ticks <= 52
@@ -793,7 +802,7 @@ def test_set_rpm_speed_estimator_and_stops():
     assert m.driver_position() == held
     m.move_steps(51200)
     b.tick(500)
-    assert abs(m.driver_rpm() - 200 * 60 / 200) < 1e-6  # 200 full steps/s = 60 rpm
+    assert abs((m.driver_rpm() / RPM) - 200 * 60 / 200) < 1e-4  # 200 full steps/s = 60 rpm
 
 
 def test_coarse_microstepping_lands_within_one_pulse():
@@ -808,11 +817,11 @@ def test_coarse_microstepping_lands_within_one_pulse():
 def test_velocity_limits():
     b = Bench().begin()
     m = b.motor
-    m.set_max_velocity(-10 ** 6)
-    m.set_rpm(10 ** 5)
-    m.set_max_acceleration(10 ** 6)  # clamped to the TMC5130's 2.98e6 usteps/s^2
+    m.set_max_velocity(-10 ** 5 * FS)
+    m.set_rpm(16000 * RPM)
+    m.set_max_acceleration(10 ** 6 * FS)  # clamped to the TMC5130's 2.98e6 usteps/s^2
     b.tick(500)
-    assert abs(m.driver_rpm() * 51200 / 60 - 1080000) < 1e-3  # 90 % of the 1.2 MHz pulse rate
+    assert abs((m.driver_rpm() / RPM) * 51200 / 60 - 1080000) < 1e-3  # 90 % of the 1.2 MHz pulse rate
 
 
 def test_currents_brake_and_direction_write_registers():
@@ -840,13 +849,13 @@ def test_inverted_wiring_is_fixed_by_the_shaft_bit():
     b = Bench().begin()
     b.wiring = -1
     m = b.motor
-    m.move_angle(10.0)
+    m.move_angle(to_q(10.0, ANGLE_Q))
     b.run_until_reached()
-    assert m.angle_moved() < 0
+    assert deg(m) < 0
     m.set_inverted(True)
-    m.move_angle(10.0)
+    m.move_angle(to_q(10.0, ANGLE_Q))
     b.run_until_reached()
-    assert abs(m.angle_moved()) < 0.1
+    assert abs(deg(m)) < 0.1
 
 
 def test_diagnostics_report_driver_and_magnet():
@@ -870,7 +879,7 @@ def test_encoder_dropout_skips_the_closed_loop_tick():
     b = Bench().begin()
     m = b.motor
     m.enable_closed_loop()
-    m.set_rpm(10)
+    m.set_rpm(10 * RPM)
     b.tick(200)
     b.i2c.fail = True
     before = m.pid_error()

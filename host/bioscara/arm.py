@@ -25,7 +25,8 @@ from enum import Enum
 
 from .bus.base import Bus
 from .config import ArmConfig, JointConfig
-from .errors import BioscaraError, IncorrectStateError, InvalidArgumentError, NotHomedError
+from .errors import BioscaraError, CommError, IncorrectStateError, InvalidArgumentError, NotHomedError
+from .firmware import protocol as P
 from .joint import BlockingCommand, Joint
 
 log = logging.getLogger("bioscara.arm")
@@ -79,12 +80,23 @@ def make_joint(config: JointConfig, bus: Bus) -> Joint:
                  max=config.max, max_velocity=config.max_velocity)
 
 
-class Arm:
-    """The four joints of the arm behind one bus, driven in read/write cycles."""
+PROTOCOLS = ("auto", "legacy", "v2")
 
-    def __init__(self, config: ArmConfig, bus: Bus) -> None:
+
+class Arm:
+    """The four joints of the arm behind one bus, driven in read/write cycles.
+
+    `protocol`: "auto" moves every joint whose IDENTITY says it can to protocol v2 when the arm
+    is configured (one transaction per joint per cycle), "legacy" keeps the original register
+    map, "v2" requires it.
+    """
+
+    def __init__(self, config: ArmConfig, bus: Bus, protocol: str = "auto") -> None:
+        if protocol not in PROTOCOLS:
+            raise InvalidArgumentError(f"protocol must be one of {', '.join(PROTOCOLS)}, not {protocol!r}")
         self.config = config
         self.bus = bus
+        self.protocol = protocol
         self.lifecycle = Lifecycle.UNCONFIGURED
         self.joints = {name: ArmJoint(jc, make_joint(jc, bus)) for name, jc in config.joints.items()}
         self.fault: BioscaraError | None = None
@@ -112,6 +124,7 @@ class Arm:
                 for aj in self.joints.values():
                     aj.joint.init()
                     opened.append(aj)
+                    self._choose_protocol(aj.joint)
             except BioscaraError:
                 for aj in opened:
                     aj.joint.close()
@@ -120,6 +133,22 @@ class Arm:
                 aj.state, aj.command, aj.modes = JointValues(), JointValues(), set()
             self.fault = None
             self.lifecycle = Lifecycle.INACTIVE
+
+    def _choose_protocol(self, joint: Joint) -> None:
+        if self.protocol == "legacy":
+            return
+        supported = joint.identity().protocol >= P.PROTOCOL_VERSION
+        if supported:
+            try:
+                joint.use_v2()
+            except CommError as exc:
+                if self.protocol == "v2":
+                    raise
+                # A port without a memory-mode target (CircuitPython) keeps serving legacy.
+                log.warning("joint %s stays on the legacy map: %s", joint.name, exc.detail)
+                joint.check_com()
+        elif self.protocol == "v2":
+            raise IncorrectStateError("the joint's firmware does not serve protocol v2", joint=joint.name)
 
     def cleanup(self) -> None:
         with self._lock:
@@ -241,6 +270,58 @@ class Arm:
                 self._fault(first)
                 raise first
 
+    def cycle(self) -> None:
+        """One read/write cycle (the write only while active). A joint speaking protocol v2 gets
+        one transaction carrying its mode's setpoint and returning its state; a legacy joint two
+        register reads, then its mode's command."""
+        with self._lock:
+            if not any(aj.joint.v2 is not None for aj in self.joints.values()):
+                self.read()
+                if self.lifecycle is Lifecycle.ACTIVE:
+                    self.write()
+                return
+            self._expect("read", Lifecycle.INACTIVE, Lifecycle.ACTIVE)
+            first: BioscaraError | None = None
+            for aj in self.joints.values():
+                try:
+                    if aj.joint.v2 is not None:
+                        self._cycle_v2(aj)
+                    else:
+                        self._read_joint(aj)
+                        if self.lifecycle is Lifecycle.ACTIVE:
+                            for mode in aj.modes:
+                                self._write_mode(aj, mode)
+                except BioscaraError as exc:  # the other joints' states stay fresh
+                    first = first or exc
+            if first is not None:
+                self._fault(first)
+                raise first
+
+    def _cycle_v2(self, aj: ArmJoint) -> None:
+        joint = aj.joint
+        register: int | None = None
+        value = 0.0
+        if self.lifecycle is Lifecycle.ACTIVE:
+            try:
+                for mode in aj.modes:
+                    if mode is Mode.POSITION:
+                        register, value = P.MOVETOANGLE, joint.position_setpoint(aj.command.position)
+                    elif mode is Mode.VELOCITY:
+                        register, value = P.SETRPM, joint.velocity_setpoint(aj.command.velocity)
+                    else:
+                        self._write_mode(aj, mode)
+            except BioscaraError:
+                aj.state.home = 1.0 if joint.is_homed() else 0.0  # the guards' fresh flags
+                raise
+        if joint.v2 is None:  # it went back to legacy (reboot, silence) while guarding
+            self._read_joint(aj)
+            return
+        sample = joint.cycle_v2(register, value)
+        if sample is not None:  # None: no fresh state this cycle, the last one stands
+            aj.state.position, aj.state.velocity = sample
+        aj.state.home = 1.0 if joint.is_homed() else 0.0
+        self._finish_homing(aj)
+
     def _read_joint(self, aj: ArmJoint) -> None:
         joint = aj.joint
         try:
@@ -249,6 +330,10 @@ class Arm:
             aj.state.position = math.nan
         aj.state.velocity = joint.get_velocity()
         aj.state.home = 1.0 if joint.is_homed() else 0.0
+        self._finish_homing(aj)
+
+    def _finish_homing(self, aj: ArmJoint) -> None:
+        joint = aj.joint
         if (joint.current_blocking is BlockingCommand.HOME and not joint.is_busy()
                 and self.lifecycle is Lifecycle.ACTIVE):
             if self._stop_homing(aj):

@@ -15,6 +15,7 @@ import sys
 from collections.abc import Sequence
 
 from . import __version__
+from .arm import PROTOCOLS
 from .bus import Bus
 from .commands import COMMANDS
 from .errors import BioscaraError, ConfigError, InvalidArgumentError
@@ -39,6 +40,8 @@ def _common(uses: Sequence[str], top: bool) -> argparse.ArgumentParser:
     if "bus" in uses:
         common.add_argument("--bus", metavar="URL", help="smbus:1, blinka:, serial:/dev/ttyACM0, sim: (the "
                             "shared simulated arm) or sim:virtual (default: $BIOSCARA_BUS, else the config's bus)")
+        common.add_argument("--protocol", choices=PROTOCOLS, help="joint protocol: auto (v2 where the joint "
+                            "serves it), legacy or v2 (default: auto)", **({"default": "auto"} if top else suppress))
     if "config" in uses:
         common.add_argument("--config", metavar="FILE", help="arm configuration (TOML; default: "
                             "$XDG_CONFIG_HOME/bioscara/arm.toml if it exists, else the shipped J1-J4 configuration)")

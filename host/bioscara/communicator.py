@@ -165,9 +165,7 @@ class Communicator:
         fault = None
         try:
             if self.arm.lifecycle in (Lifecycle.INACTIVE, Lifecycle.ACTIVE):
-                self.arm.read()
-            if self.arm.lifecycle is Lifecycle.ACTIVE:
-                self.arm.write()
+                self.arm.cycle()
         except BioscaraError as exc:
             fault = str(exc)
             self.stats.errors += 1

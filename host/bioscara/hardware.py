@@ -26,8 +26,9 @@ def open_arm_bus(config: ArmConfig, **overrides: Any) -> Bus:
     return open_bus(config.bus_url, **kwargs)
 
 
-def open_arm(config: ArmConfig, bus: Bus | None = None) -> Arm:
-    return Arm(config, bus if bus is not None else open_arm_bus(config))
+def open_arm(config: ArmConfig, bus: Bus | None = None, protocol: str = "auto") -> Arm:
+    """The arm of `config`; `protocol` "auto" (v2 where the joints serve it), "legacy" or "v2"."""
+    return Arm(config, bus if bus is not None else open_arm_bus(config), protocol)
 
 
 def open_gripper(config: ArmConfig, clock: Callable[[], float] | None = None) -> BaseGripper | None:

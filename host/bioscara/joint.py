@@ -16,6 +16,7 @@ units through the joint's `Transmission`. Differences from the original, all fix
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass
 from enum import Enum, IntEnum
@@ -26,9 +27,15 @@ from .errors import (
     NotInitError, StalledError,
 )
 from .firmware import protocol as P
+from .firmware import protocol_v2 as V
 from .transmission import Transmission
+from .v2link import V2Link, V2Rejected
+
+log = logging.getLogger("bioscara.joint")
 
 CACHED_FLAGS = P.FLAG_STALL | P.FLAG_BUSY | P.FLAG_NOTHOMED | P.FLAG_NOTENABLED
+V2_SWITCH_S = 0.001  # one pass of the joint's main loop
+V2_FALLBACK_AFTER = 3  # corrupted v2 states in a row before checking whether the joint went legacy
 
 
 class BrakeMode(IntEnum):
@@ -101,6 +108,7 @@ class Joint:
         self.current_blocking = BlockingCommand.NONE
         self._homing_offset = 0.0
         self._open = False
+        self.v2: V2Link | None = None  # set while the joint speaks protocol v2
 
     def __repr__(self) -> str:
         return f"Joint({self.name!r}, 0x{self.address:02x}, flags={P.describe_flags(self.flags)})"
@@ -114,7 +122,14 @@ class Joint:
         self._open = True
         self.current_blocking = BlockingCommand.NONE  # whatever ran before is the joint's past now
         try:
-            self.check_com()
+            try:
+                self.check_com()
+            except CommError:
+                raise
+            except BioscaraError:  # it answers, but not in the legacy map: left in v2 by a host?
+                if not self.take_over_v2():
+                    raise
+                self.use_legacy()
             if self.is_homed():
                 self.transmission = self.transmission.with_offset(self.get_homing_offset())
         except BioscaraError:
@@ -122,9 +137,73 @@ class Joint:
             raise
 
     def close(self) -> None:
-        """Stop using the joint (no motor I/O; call `disable` first to de-energize). Idempotent."""
+        """Stop using the joint (no motor I/O; call `disable` first to de-energize). Idempotent.
+
+        A joint speaking v2 is returned to the legacy map, so any host can take over at once; if
+        that fails (bus down) it returns by itself after protocol_v2.SILENCE_MS."""
+        if self.v2 is not None and self._open:
+            try:
+                self.use_legacy()
+            except BioscaraError as exc:
+                log.info("joint %s left in protocol v2: %s", self.name, exc)
         self._open = False
         self.current_blocking = BlockingCommand.NONE
+        self.v2 = None
+
+    # ---- protocol ----
+
+    @property
+    def protocol(self) -> str:
+        """"v2" while the joint speaks the memory-mapped protocol, else "legacy"."""
+        return "v2" if self.v2 is not None else "legacy"
+
+    def use_v2(self) -> None:
+        """Switch the joint to protocol v2 (the legacy PROTOCOL register), then sync with it."""
+        self._require_open()
+        if self.v2 is not None:
+            return
+        self._command(P.PROTOCOL, V.PROTOCOL_V2)
+        self.bus.sleep(2 * V2_SWITCH_S)  # the joint switches in its next main-loop pass
+        link = V2Link(self.bus, self.address, self.name)
+        self._take_flags(link.sync().flags)
+        self.v2 = link
+
+    def use_legacy(self) -> None:
+        """Return the joint to the legacy register map (the v2 PROTOCOL command). The joint
+        switches in the main-loop pass after it accepted the command, which may be before its
+        verdict can be read: the legacy PING that follows is the confirmation."""
+        self._require_open()
+        link = self.v2
+        if link is None:
+            return
+        problem: BioscaraError | None = None
+        for _ in range(3):
+            try:
+                link.post(P.PROTOCOL, P.register(P.PROTOCOL).encode(V.PROTOCOL_LEGACY))
+            except CommError as exc:
+                problem = exc
+                continue
+            self.v2 = None
+            self.bus.sleep(2 * V2_SWITCH_S)
+            try:
+                self.check_com()
+                return
+            except BioscaraError as exc:
+                problem = exc
+                self.v2 = link
+        raise CommError(f"the joint did not return to the legacy map ({problem.detail if problem else ''})",
+                        joint=self.name)
+
+    def take_over_v2(self) -> bool:
+        """True (now speaking v2) if the joint already serves v2, left so by an earlier host."""
+        self._require_open()
+        link = V2Link(self.bus, self.address, self.name)
+        try:
+            self._take_flags(link.sync(attempts=4).flags)
+        except BioscaraError:
+            return False
+        self.v2 = link
+        return True
 
     deinit = close
 
@@ -230,10 +309,14 @@ class Joint:
 
     def set_position(self, position: float) -> None:
         """Move to `position` (joint units) within [min, max]."""
+        self._check_stall(self._command(P.MOVETOANGLE, self.position_setpoint(position)))
+
+    def position_setpoint(self, position: float) -> float:
+        """The MOVETOANGLE value (motor degrees) for `position`, after the guards."""
         if not (math.isfinite(position) and self.min <= position <= self.max):
             raise InvalidArgumentError(f"position {position} is outside [{self.min}, {self.max}]", joint=self.name)
         self._require_enabled_and_homed()
-        self._check_stall(self._command(P.MOVETOANGLE, self.transmission.motor_degrees(position)))
+        return self.transmission.motor_degrees(position)
 
     def get_velocity(self) -> float:
         """Encoder velocity, joint units/s."""
@@ -242,10 +325,41 @@ class Joint:
 
     def set_velocity(self, velocity: float) -> None:
         """Turn at `velocity` (joint units/s); |velocity| <= max_velocity."""
+        self._check_stall(self._command(P.SETRPM, self.velocity_setpoint(velocity)))
+
+    def velocity_setpoint(self, velocity: float) -> float:
+        """The SETRPM value (motor rpm) for `velocity`, after the guards."""
         if not (math.isfinite(velocity) and abs(velocity) <= self.max_velocity):
             raise InvalidArgumentError(f"velocity {velocity} exceeds the limit {self.max_velocity}", joint=self.name)
         self._require_enabled_and_homed()
-        self._check_stall(self._command(P.SETRPM, self.transmission.motor_rpm(velocity)))
+        return self.transmission.motor_rpm(velocity)
+
+    def cycle_v2(self, register: int | None = None, value: float = 0.0) -> tuple[float, float] | None:
+        """Protocol v2: one transaction sending a setpoint (MOVETOANGLE / SETRPM with its motor
+        value, None for none) and reading the state. Returns (position, velocity) in joint units
+        (position NaN while not homed), or None if no intact, fresh state arrived this time."""
+        self._require_open()
+        link = self.v2
+        if link is None:
+            raise IncorrectStateError("the joint does not speak protocol v2", joint=self.name)
+        try:
+            if register is None:
+                state = link.exchange()
+            else:
+                state = link.send(register, P.register(register).encode(value))
+        except V2Rejected as exc:
+            raise self._v2_error(exc) from None
+        except ValueError as exc:
+            raise InvalidArgumentError(str(exc), joint=self.name) from None
+        if state is None:
+            if link.bad_in_a_row >= V2_FALLBACK_AFTER:
+                self._lost_v2()
+            return None
+        self._take_flags(state.flags)
+        if register is not None:
+            self._check_stall(state.flags)
+        position = self.transmission.position(state.position_deg) if self.is_homed() else math.nan
+        return position, self.transmission.velocity(state.velocity_rpm)
 
     def move_steps(self, steps: int) -> None:
         """Relative move in the stepper's microsteps (1/256 full step); allowed before homing."""
@@ -373,6 +487,8 @@ class Joint:
 
     def _read(self, reg: P.Register) -> tuple:
         self._require_open()
+        if self.v2 is not None:
+            return self._read_v2(reg)
         reply = self._transfer(bytes([reg.addr]), reg.rsize + 1)
         self._take_flags(reply[-1])
         if reply[-1] & P.FLAG_ERROR:
@@ -396,6 +512,11 @@ class Joint:
             payload = reg.encode(*values)
         except ValueError as exc:
             raise InvalidArgumentError(str(exc), joint=self.name) from None
+        return self._send(reg, payload)
+
+    def _send(self, reg: P.Register, payload: bytes) -> int:
+        if self.v2 is not None:
+            return self._command_v2(reg, payload)
         reply = self._transfer(bytes([reg.addr]) + payload, 1)
         self._take_flags(reply[0])
         if reply[0] & P.FLAG_ERROR:
@@ -414,3 +535,65 @@ class Joint:
         if why.reason in (P.REJECT_VALUE, P.REJECT_LENGTH):
             return InvalidArgumentError(f"the joint rejected {why.text}", joint=self.name)
         return BioscaraError(f"the joint rejected {why.text}", joint=self.name)
+
+    # ---- protocol v2 ----
+
+    def _lost_v2(self) -> None:
+        """The joint answers v2 exchanges with garbage: if it speaks legacy now (it rebooted, or
+        fell back after a silence), continue in legacy; its flags say what it lost."""
+        link = self.v2
+        self.v2 = None
+        try:
+            self.check_com()
+        except BioscaraError:
+            self.v2 = link  # still not legacy: noise on the bus, keep trying v2
+            link.bad_in_a_row = 0  # type: ignore[union-attr]
+            return
+        log.warning("joint %s serves the legacy map again (reboot or host silence)", self.name)
+
+    def _read_v2(self, reg: P.Register) -> tuple:
+        """The registers the v2 state block carries; the others only exist in the legacy map."""
+        if reg.addr not in (P.PING, P.ANGLEMOVED, P.GETENCODERRPM):
+            # Not in the state block: a short visit to the legacy map (diagnostics, not the cycle).
+            self.use_legacy()
+            try:
+                return self._read(reg)
+            finally:
+                self.use_v2()
+        link = self.v2
+        try:
+            state = link.poll()  # type: ignore[union-attr]
+        except CommError:
+            if link.bad_in_a_row >= V2_FALLBACK_AFTER:  # type: ignore[union-attr]
+                self._lost_v2()
+                if self.v2 is None:
+                    return self._read(reg)
+            raise
+        self._take_flags(state.flags)
+        if reg.addr == P.PING:
+            return (P.ACK,)
+        return (state.position_deg,) if reg.addr == P.ANGLEMOVED else (state.velocity_rpm,)
+
+    def _command_v2(self, reg: P.Register, payload: bytes) -> int:
+        link = self.v2
+        try:
+            state = link.command(reg.addr, payload)  # type: ignore[union-attr]
+        except V2Rejected as exc:
+            raise self._v2_error(exc) from None
+        except CommError:
+            if link.bad_in_a_row >= V2_FALLBACK_AFTER:  # type: ignore[union-attr]
+                self._lost_v2()
+                if self.v2 is None:  # it speaks legacy now: send the command that way
+                    return self._send(reg, payload)
+            raise
+        self._take_flags(state.flags)
+        return state.flags
+
+    def _v2_error(self, exc: V2Rejected) -> BioscaraError:
+        if exc.verdict == V.REASON_BUSY:
+            return IncorrectStateError(exc.detail, joint=self.name)
+        if exc.verdict == V.REASON_DISABLED:
+            return NotEnabledError(exc.detail, joint=self.name)
+        if exc.verdict in (V.REASON_VALUE, V.REASON_COMMAND):
+            return InvalidArgumentError(exc.detail, joint=self.name)
+        return BioscaraError(exc.detail, joint=self.name)

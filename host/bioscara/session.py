@@ -47,8 +47,13 @@ class Session:
     @property
     def arm(self) -> Arm:
         if self._arm is None:
-            self._arm = open_arm(self.config, self.bus)
+            self._arm = open_arm(self.config, self.bus, self.protocol)
         return self._arm
+
+    @property
+    def protocol(self) -> str:
+        """--protocol: auto, legacy or v2."""
+        return str(getattr(self.args, "protocol", None) or "auto")
 
     def joint(self, name: str) -> Joint:
         """An initialized joint by name (j1..j4, or J1..J4)."""
@@ -84,7 +89,7 @@ class Session:
         if unknown:
             raise InvalidArgumentError(f"no joint {', '.join(unknown)}; the configuration has {', '.join(self.config.joints)}")
         config = replace(self.config, joints={name: self.config.joints[name] for name in names})
-        return open_arm(config, self.bus)
+        return open_arm(config, self.bus, self.protocol)
 
     def close(self) -> None:
         """Release the bus. Joints keep their state: a joint that was moved keeps holding."""

@@ -25,9 +25,10 @@ Default wiring (DEFAULT_PINS; the joint bus target is I2C0 on GP4 SDA / GP5 SCL)
 """
 
 from ..clock import MonotonicClock
-from ..hal import MotorHAL, USTEPS_PER_DEG, USTEPS_PER_REV
-from ..ramp import Ramp, POSITIONING, VELOCITY_NEG, VELOCITY_POS
-from ..velocity import VelocityEstimator
+from ..fixed import LIMIT, muldiv
+from ..hal import MotorHAL
+from ..ramp import TickRamp, POSITIONING, VELOCITY_NEG, VELOCITY_POS
+from ..velocity import FixedVelocityEstimator
 from . import tmc2209 as tmc
 from .as5600 import AS5600, COUNTS_PER_REV, decode_status
 from .stepgen import SM_FREQ, MIN_PERIOD, StepGenerator, burst_program
@@ -55,17 +56,18 @@ DEFAULTS.update({
 
 JOINT_BUS = {"bus": 0, "sda": 4, "scl": 5}  # the joint's I2C target (config section "i2c")
 
-_RPM_TO_USTEPS = USTEPS_PER_REV / 60.0
-_FULL_STEP = 256.0
-# The TMC5130's largest AMAX/DMAX (0xFFFE at 10 MHz), which the library clamps to and which its
-# HARD stop uses: about 11 641 full steps/s^2.
+# In usteps/s and usteps/s^2 (converted to the ramp's per-tick Q16 units at construction):
+# the TMC5130's largest AMAX/DMAX (0xFFFE at 10 MHz), which the library clamps to and which its
+# HARD stop uses, about 11 641 full steps/s^2; its VMAX limit, about 19 538 full steps/s; the
+# library constructor's profile.
 _MAX_ACCEL = 65534 * 45.4747
-_LIB_MAX_VEL = 0x7FFE00 * 0.596046  # VMAX limit, about 19 538 full steps/s
-_DEFAULT_VEL = 100 * _FULL_STEP  # the library constructor's profile
-_DEFAULT_ACCEL = 2000 * _FULL_STEP
+_LIB_MAX_VEL = 0x7FFE00 * 0.596046
+_DEFAULT_VEL = 100 * 256
+_DEFAULT_ACCEL = 2000 * 256
 _BOOT_PERCENT = 40  # setup() sets run and hold current to 40 % whatever it is passed
 _POWERDOWN_S = 0.524  # the TMC5130's reset TPOWERDOWN (20) at 10 MHz, kept for the same feel
 _STEALTH_MAX = 2000.0  # usteps/s: the library's TPWMTHRS=5000 at 10 MHz
+_FS_Q4_CAP = 20000 * 16  # full steps/s(^2) in Q4 beyond every limit below: keeps products small
 _MAX_DT_TICKS = 4  # a late update advances the ramp by at most this many loop periods
 
 
@@ -82,14 +84,21 @@ class PicoStepper(MotorHAL):
         self._microsteps = 256 // steps.upp
         self._enc_conf = (encoder_slow_filter, encoder_fast_threshold)
         self._vsense, self._cs_max = tmc.current_scale(rsense_ohm, full_scale_ma / 1000.0)
-        self._ramp = Ramp()
-        self._vel = VelocityEstimator(update_hz)
-        self._max_dt = _MAX_DT_TICKS / update_hz
-        self._vmax_limit = min(_LIB_MAX_VEL, steps.max_usteps_per_s())
-        self._vmax = min(_DEFAULT_VEL, self._vmax_limit)
-        self._amax = _DEFAULT_ACCEL
-        self._dmax = _DEFAULT_ACCEL
-        self._threshold = 10.0
+        # The 1 kHz path is integers only (a float is a heap object on the board): the ramp runs
+        # in whole ticks of `_tick_us`, speeds in Q16 usteps per tick, accelerations per tick^2.
+        rate = int(update_hz)
+        self._rate = rate
+        self._tick_us = 1000000 // rate
+        self._ramp = TickRamp()
+        self._vel = FixedVelocityEstimator(rate)
+        self._per_tick = 65536 / rate  # usteps/s -> Q16 usteps/tick (configuration time only)
+        self._per_tick2 = 65536 / (rate * rate)
+        self._vmax_limit = self._v(min(_LIB_MAX_VEL, steps.max_usteps_per_s()))
+        self._max_accel = self._a(_MAX_ACCEL)
+        self._vmax = min(self._v(_DEFAULT_VEL), self._vmax_limit)
+        self._amax = self._a(_DEFAULT_ACCEL)
+        self._dmax = self._amax
+        self._threshold = 10
         self._closed_loop = False
         self._error = 0
         self._stopping = False
@@ -97,6 +106,8 @@ class PicoStepper(MotorHAL):
         self._pwmconf = 0
         self._ready = False
         self._last_us = 0
+        self._ticks = self._clock.ticks_us
+        self._diff = self._clock.ticks_diff
         self.fault = None  # last UART error after begin(), for diagnostics
         self.faults = 0
 
@@ -165,10 +176,10 @@ class PicoStepper(MotorHAL):
         self._steps.shift(-self._steps.position)
         ramp = self._ramp
         ramp.set_position(self._steps.commanded)
-        ramp.v = 0.0
+        ramp.v = 0
         ramp.mode = POSITIONING
         ramp.xtarget = ramp.xactual()
-        ramp.vmax = 0.0  # the library leaves VMAX at 0 until the first motion call
+        ramp.vmax = 0  # the library leaves VMAX at 0 until the first motion call
         ramp.amax = self._amax
         ramp.dmax = self._dmax
         self._closed_loop = False
@@ -181,37 +192,51 @@ class PicoStepper(MotorHAL):
 
     # ---- the timer interrupt of the library, once per main-loop iteration ----
 
+    def _v(self, usteps_per_s):
+        """usteps/s -> the ramp's Q16 usteps per tick (configuration time: may allocate)."""
+        return int(abs(usteps_per_s) * self._per_tick + 0.5)
+
+    def _a(self, usteps_per_s2):
+        return int(abs(usteps_per_s2) * self._per_tick2 + 0.5)
+
     def update(self):
+        """One control period: allocation-free (integers only), see the module docstring."""
         if not self._ready:
             return
-        clock = self._clock
-        now = clock.ticks_us()
-        dt = clock.ticks_diff(now, self._last_us) * 1e-6
-        self._last_us = now
-        if dt > self._max_dt:
-            dt = self._max_dt
+        now = self._ticks()
+        tick_us = self._tick_us
+        ticks = self._diff(now, self._last_us) // tick_us
+        if ticks <= 0:
+            return  # called again within the same tick
+        if ticks > _MAX_DT_TICKS:
+            ticks = _MAX_DT_TICKS
+            self._last_us = now
+        else:
+            self._last_us += ticks * tick_us
         steps = self._steps
         steps.poll()
         enc = self._enc
         if enc.sample():
             self._vel.update(enc.count)
             if self._closed_loop:
-                measured = enc.usteps()
+                count = enc.count
+                measured = (count * 25) >> 1 if count >= 0 else -((-count * 25) >> 1)
                 error = steps.position - measured
                 self._error = error
-                if abs(error) >= self._threshold:
+                if error >= self._threshold or -error >= self._threshold:
                     self._relabel(-error)
         ramp = self._ramp
-        ramp.step(dt)
-        if self._stopping and ramp.v == 0.0:
+        for _ in range(ticks):
+            ramp.tick()
+        if self._stopping and ramp.v == 0:
             self._finish_stop()
-        steps.issue(ramp.x, dt)
+        steps.issue(ramp.x, ticks * tick_us)
 
     def _relabel(self, delta):
         """Shift the driver frame by `delta` usteps without moving the motor (an XACTUAL write):
         in positioning mode the ramp then makes up the difference toward the same target."""
         self._steps.shift(delta)
-        self._ramp.set_position(self._ramp.x + delta)
+        self._ramp.x += delta  # keeps the sub-ustep fraction
 
     # ---- closed loop ----
 
@@ -230,28 +255,41 @@ class PicoStepper(MotorHAL):
     # the library finishes (blocking) before anything else runs; it restores them at the end.
 
     def set_max_velocity(self, full_steps_per_s):
-        self._vmax = min(abs(full_steps_per_s) * _FULL_STEP, self._vmax_limit)
+        """Full steps/s in Q4 (fixed.STEPS_Q)."""
+        fs = abs(full_steps_per_s)
+        fs = fs if fs < _FS_Q4_CAP else _FS_Q4_CAP
+        v = muldiv(fs * 64, 16384, self._rate)  # Q4 fs/s -> Q16 usteps/tick
+        self._vmax = v if v < self._vmax_limit else self._vmax_limit
         if not self._stopping:
             self._ramp.vmax = self._vmax
 
+    def _accel(self, q4):
+        """Full steps/s^2 in Q4 -> Q16 usteps/tick^2, clamped to the driver's maximum."""
+        rate = self._rate
+        q4 = abs(q4)
+        a = muldiv(muldiv(q4 if q4 < _FS_Q4_CAP else _FS_Q4_CAP, 1024, rate), 1024, rate)
+        return a if a < self._max_accel else self._max_accel
+
     def set_max_acceleration(self, full_steps_per_s2):
-        self._amax = min(abs(full_steps_per_s2) * _FULL_STEP, _MAX_ACCEL)
+        """Full steps/s^2 in Q4 (fixed.STEPS_Q)."""
+        self._amax = self._accel(full_steps_per_s2)
         if not self._stopping:
             self._ramp.amax = self._amax
 
     def set_max_deceleration(self, full_steps_per_s2):
-        self._dmax = min(abs(full_steps_per_s2) * _FULL_STEP, _MAX_ACCEL)
+        self._dmax = self._accel(full_steps_per_s2)
         if not self._stopping:
             self._ramp.dmax = self._dmax
 
     def set_rpm(self, rpm):
-        """Velocity mode: VMAX = |rpm| in usteps/s, direction from the sign (0 ramps down)."""
+        """Velocity mode: VMAX = |rpm| (Q16, fixed.RPM_Q), direction from the sign (0 ramps down)."""
         ramp = self._ramp
         if self._stopping:  # a new command ends a stop (the library's stop() blocks instead)
             self._stopping = False
             ramp.amax = self._amax
             ramp.dmax = self._dmax
-        ramp.vmax = min(abs(rpm) * _RPM_TO_USTEPS, self._vmax_limit)
+        v = muldiv(rpm if rpm >= 0 else -rpm, 2560, 3 * self._rate)  # 51200 / 60 usteps/s per rpm
+        ramp.vmax = v if v < self._vmax_limit else self._vmax_limit
         ramp.mode = VELOCITY_POS if rpm > 0 else VELOCITY_NEG
 
     def move_steps(self, usteps):
@@ -262,15 +300,17 @@ class PicoStepper(MotorHAL):
         ramp.amax = self._amax
         ramp.dmax = self._dmax
         ramp.mode = POSITIONING
-        ramp.xtarget = ramp.xactual() + int(usteps)
+        ramp.xtarget = ramp.xactual() + usteps
 
     def move_angle(self, degrees):
-        steps = degrees * USTEPS_PER_DEG
-        self.move_steps(int(steps + 0.5) if steps >= 0 else int(steps - 0.5))
+        """Relative move of `degrees` in Q12 (fixed.ANGLE_Q), rounded to usteps half away from 0."""
+        steps = (muldiv(degrees if degrees >= 0 else -degrees, 10, 144) + 1) >> 1  # 51200/360/4096
+        self.move_steps(steps if degrees >= 0 else -steps)
 
     def move_to_angle(self, degrees):
+        """Absolute move to `degrees` (Q12) of encoder angle since home."""
         diff = degrees - self.angle_moved()
-        steps = int(abs(diff) * USTEPS_PER_DEG + 0.5)
+        steps = (muldiv(diff if diff >= 0 else -diff, 10, 144) + 1) >> 1
         self.move_steps(steps if diff >= 0 else -steps)
 
     def stop(self, hard=True):
@@ -279,11 +319,11 @@ class PicoStepper(MotorHAL):
         ramp = self._ramp
         self._stopping = True
         if hard:
-            ramp.amax = _MAX_ACCEL
-            ramp.dmax = _MAX_ACCEL
-        ramp.vmax = 0.0
+            ramp.amax = self._max_accel
+            ramp.dmax = self._max_accel
+        ramp.vmax = 0
         ramp.mode = VELOCITY_NEG
-        if ramp.v == 0.0:
+        if ramp.v == 0:
             self._finish_stop()
 
     def _finish_stop(self):
@@ -339,16 +379,27 @@ class PicoStepper(MotorHAL):
     # ---- getters ----
 
     def angle_moved(self):
-        return self._enc.degrees()
+        """Encoder angle since home, degrees in Q12 (exact: 360 Q12 units a count)."""
+        count = self._enc.count
+        return count * 360 if -2982616 < count < 2982616 else (LIMIT if count > 0 else -LIMIT)
 
     def encoder_rpm(self):
-        return self._vel.value * 60.0 / COUNTS_PER_REV
+        """rpm in Q16: counts/s (Q8) * 60 / 4096 * 256."""
+        v = self._vel.value
+        return muldiv(v, 15, 4) if v >= 0 else -muldiv(-v, 15, 4)
 
     def driver_rpm(self):
-        return self._ramp.v / _RPM_TO_USTEPS
+        """Speed of the ramp generator, rpm in Q16 (the ramp's Q16 usteps/tick * rate * 60 / 51200)."""
+        v = self._ramp.v
+        return muldiv(v, 3 * self._rate, 2560) if v >= 0 else -muldiv(-v, 3 * self._rate, 2560)
 
     def pid_error(self):
-        return float(self._error)
+        """usteps (int)."""
+        return self._error
+
+    def field_position(self):
+        """Usteps of pulses that reached the driver since construction, wrapping at 2**30."""
+        return self._steps.field
 
     def position_reached(self):
         return not self._stopping and self._ramp.position_reached() and self._steps.idle()

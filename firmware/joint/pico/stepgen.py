@@ -43,7 +43,7 @@ MAX_DELAY = const(0x3FFF)
 MAX_PULSES = const(0x8000)
 MIN_PERIOD = MIN_DELAY + PERIOD_OVERHEAD
 MAX_PERIOD = MAX_DELAY + PERIOD_OVERHEAD
-BURST_FILL = 0.9
+BURST_FILL = 0.9  # issue() uses 9 // 10 on the integer path
 MAX_IN_FLIGHT = const(4)  # bursts queued or unacknowledged; 4 keeps put() and the PIO push non-blocking
 
 
@@ -54,13 +54,15 @@ def usteps_per_pulse(microsteps):
     return 256 // microsteps
 
 
-def period_cycles(usteps_per_s, upp, sm_freq=SM_FREQ):
-    """PIO cycles per pulse at a speed of |usteps_per_s|, `upp` usteps per pulse, clamped to
-    MIN_PERIOD..MAX_PERIOD (slower speeds simply finish their burst early)."""
-    rate = abs(usteps_per_s) / upp
-    if rate * MAX_PERIOD <= sm_freq:
+def period_cycles(pulses, window_us, sm_freq=SM_FREQ):
+    """PIO cycles per pulse for |pulses| pulses spread over `window_us` microseconds, clamped to
+    MIN_PERIOD..MAX_PERIOD (slower speeds simply finish their burst early). Integers only:
+    sm_freq must be a whole number of kHz * 100 (12.5 MHz: 25 cycles per 2 us)."""
+    n = pulses if pulses > 0 else -pulses
+    per_2us = sm_freq // 500000
+    if n * MAX_PERIOD * 2 <= per_2us * window_us:
         return MAX_PERIOD
-    p = int(sm_freq / rate)
+    p = per_2us * window_us // (2 * n)
     return MIN_PERIOD if p < MIN_PERIOD else p
 
 
@@ -84,17 +86,18 @@ def burst_cycles(word):
     return 5 + n * (((word >> 16) & MAX_DELAY) + PERIOD_OVERHEAD)
 
 
-def plan_burst(owed_usteps, upp, window_s, max_pulses, sm_freq=SM_FREQ):
-    """(pulses, word): whole pulses of `upp` usteps toward `owed_usteps` (truncated toward zero,
-    at most max_pulses), spread over `window_s` seconds. (0, 0) when there is nothing to send."""
-    pulses = int(owed_usteps / upp)
+def plan_burst(owed_usteps, upp, window_us, max_pulses, sm_freq=SM_FREQ):
+    """(pulses, word): whole pulses of `upp` usteps toward `owed_usteps` (int, truncated toward
+    zero, at most max_pulses), spread over `window_us` microseconds. (0, 0) when there is nothing
+    to send."""
+    pulses = owed_usteps // upp if owed_usteps >= 0 else -(-owed_usteps // upp)
     if pulses > max_pulses:
         pulses = max_pulses
     elif pulses < -max_pulses:
         pulses = -max_pulses
     if pulses == 0:
         return 0, 0
-    return pulses, burst_word(pulses, period_cycles(pulses * upp / window_s, upp, sm_freq))
+    return pulses, burst_word(pulses, period_cycles(pulses, window_us, sm_freq))
 
 
 def burst_program():
@@ -134,9 +137,12 @@ class StepGenerator:
         self.upp = usteps_per_pulse(microsteps)
         self._sm_freq = sm_freq
         self._max_rate = max_rate
+        self._cycles_per_2us = sm_freq // 500000
+        self._rate_per_ms = int(max_rate) // 1000  # pulses per ms: config max_step_rate >= 1000
         self.position = 0
         self.commanded = 0
         self.in_flight = 0
+        self.field = 0  # usteps of acknowledged pulses, never relabelled, wrapping at 2**30
 
     def max_usteps_per_s(self):
         """Highest average speed: BURST_FILL of the time at the maximum pulse rate."""
@@ -149,25 +155,34 @@ class StepGenerator:
         """Account for bursts the PIO has finished."""
         sm = self._sm
         while sm.rx_fifo():
-            self.position += burst_pulses(sm.get()) * self.upp
+            moved = burst_pulses(sm.get()) * self.upp
+            self.position += moved
+            self.field = (self.field + moved) & 0x3FFFFFFF
             self.in_flight -= 1
 
-    def issue(self, target, dt):
-        """Queue one burst toward `target` (usteps, the ramp position) spread over BURST_FILL of
-        `dt` seconds; returns the pulses queued (0 when there is nothing whole to send or the
-        FIFO is busy)."""
+    def issue(self, target, dt_us):
+        """Queue one burst toward `target` (int usteps, the ramp position) spread over BURST_FILL
+        of `dt_us` microseconds; returns the pulses queued (0 when there is nothing whole to send
+        or the FIFO is busy). Integers only: it runs at 1 kHz on the board."""
         if self.in_flight >= MAX_IN_FLIGHT:
             return 0
-        window = BURST_FILL * dt
-        max_pulses = int(window * self._sm_freq) // MIN_PERIOD
-        if max_pulses > self._max_rate * window:
-            max_pulses = int(self._max_rate * window)
+        window = dt_us * 9 // 10  # BURST_FILL
+        max_pulses = window * self._cycles_per_2us // (2 * MIN_PERIOD)
+        limit = window * self._rate_per_ms // 1000
+        if max_pulses > limit:
+            max_pulses = limit
         if max_pulses > MAX_PULSES:
             max_pulses = MAX_PULSES
-        pulses, word = plan_burst(target - self.commanded, self.upp, window, max_pulses, self._sm_freq)
+        owed = target - self.commanded
+        upp = self.upp
+        pulses = owed // upp if owed >= 0 else -(-owed // upp)
+        if pulses > max_pulses:
+            pulses = max_pulses
+        elif pulses < -max_pulses:
+            pulses = -max_pulses
         if pulses:
-            self._sm.put(word)
-            self.commanded += pulses * self.upp
+            self._sm.put(burst_word(pulses, period_cycles(pulses, window, self._sm_freq)))
+            self.commanded += pulses * upp
             self.in_flight += 1
         return pulses
 

@@ -1,10 +1,22 @@
-"""A simulated joint: the real firmware core and IRQ path driving a simulated stepper."""
+"""A simulated joint: the real firmware core and I2C paths (legacy IRQ and v2 memory map)
+driving a simulated stepper."""
 
 from .. import config as joint_config
+from .. import protocol_v2 as V
 from ..core import JointController
 from ..i2c_target import I2CTargetAdapter
 from ..log import INFO, Logger
+from ..v2 import ProtocolSwitch
+from .fixed_hal import FixedPointHAL
 from .i2c_target import FakeI2CTarget
+
+
+def _no_irq_off():
+    return 0
+
+
+def _no_irq_on(state):
+    pass
 
 
 class SimJoint:
@@ -12,7 +24,8 @@ class SimJoint:
 
     The stepper (physical state: rotor angle, end stops) outlives `power_cycle()`, which reboots
     the firmware: the joint ignores its address until the boot sequence has finished, then comes
-    back not homed and not enabled, exactly like a real joint after a brown-out.
+    back not homed and not enabled, serving the legacy map, exactly like a real joint after a
+    brown-out.
     """
 
     def __init__(self, cfg, clock, stepper, port="rp2", write=None, level=INFO):
@@ -21,29 +34,58 @@ class SimJoint:
         self.cfg = cfg
         self.clock = clock
         self.stepper = stepper
-        self.target = FakeI2CTarget(cfg.address, port)
+        self.port = port
         self.log = Logger(cfg.joint, level, write)
         self.boots = 0
         self.connected = True  # False: the bus cable is unplugged, the address does not ACK
         self.core = None
-        self.adapter = None
+        self.switch = None
         self.power_cycle()
 
     def power_cycle(self):
-        self.target.deinit()
-        self.adapter = None
-        self.core = JointController(self.stepper, self.clock, self.cfg, self.log)
+        if self.switch is not None:
+            self.switch.deinit()
+        self.switch = None
+        self.core = JointController(FixedPointHAL(self.stepper), self.clock, self.cfg, self.log)
         self.boots += 1
+
+    @property
+    def target(self):
+        """The I2C target the joint serves now (the legacy IRQ target or the v2 memory)."""
+        return self.switch.target
+
+    @property
+    def protocol(self):
+        return self.switch.protocol if self.switch is not None else V.PROTOCOL_LEGACY
 
     @property
     def online(self):
         """True once the firmware has joined the bus (it ACKs its address) and the cable is in."""
-        return self.connected and self.adapter is not None
+        return self.connected and self.switch is not None
+
+    def _make_target(self, mem):
+        if mem is None:
+            return FakeI2CTarget(self.cfg.address, self.port)
+        return FakeI2CTarget(self.cfg.address, self.port, mem=mem, mem_addrsize=V.MEM_ADDRSIZE)
+
+    def _legacy_adapter(self, target):
+        return I2CTargetAdapter(self.core, target, self.cfg.i2c.whole_reply_writes)
 
     def tick(self):
         self.core.service()
-        if self.adapter is None and self.core.ready:
-            self.adapter = I2CTargetAdapter(self.core, self.target, self.cfg.i2c.whole_reply_writes)
+        if self.switch is None:
+            if self.core.ready:
+                self.switch = ProtocolSwitch(self.core, self.cfg.address, self._make_target,
+                                             self._legacy_adapter, (_no_irq_off, _no_irq_on),
+                                             _activity)
+        else:
+            self.switch.service()
+
+
+def _activity(target):
+    def active():
+        return target.active
+    return active
 
 
 def make_joint(joint, clock, stepper, **kwargs):

@@ -3,17 +3,20 @@
 from __future__ import annotations
 
 import argparse
+from dataclasses import asdict
 from typing import Any
 
 from rich.table import Table
 
 from .. import report
-from ..errors import BioscaraError, NotHomedError
+from ..errors import BioscaraError, IncorrectStateError, NotHomedError
+from ..firmware import protocol_v2 as V
 from ..session import Session
 from .options import one_joint
 
 NAME = "info"
-HELP = "identity, flags, position, velocity, last rejected frame and link statistics of a joint"
+HELP = ("identity, protocol, flags, position, velocity, last rejected frame and link statistics "
+        "of a joint")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -25,15 +28,22 @@ def run(args: argparse.Namespace, session: Session) -> int:
     jc = session.config.joints[args.joint]
     info: dict[str, Any] = {**report.joint_ref(args.joint, jc), "type": jc.type, "reduction": jc.reduction,
                             "limits": [jc.min, jc.max]}
+    identity = None
     try:
         identity = joint.identity()
-        info.update(protocol=identity.protocol, firmware=identity.firmware_version, joint_id=identity.joint_id,
-                    spec_hash=f"{identity.spec_hash:08x}", spec_matches=identity.spec_matches)
+        info.update(protocol_version=identity.protocol, firmware=identity.firmware_version,
+                    joint_id=identity.joint_id, spec_hash=f"{identity.spec_hash:08x}",
+                    spec_matches=identity.spec_matches)
         reject = joint.last_reject()
         info["rejected_frames"] = reject.count
         info["last_rejected"] = reject.text if reject.count else None
     except BioscaraError as exc:
         info["identity_error"] = exc.detail
+    if session.protocol != "legacy" and identity is not None and identity.protocol >= V.PROTOCOL_V2:
+        joint.use_v2()  # the rest is read over protocol v2
+    elif session.protocol == "v2":
+        raise IncorrectStateError("the joint does not serve protocol v2", joint=args.joint)
+    info["protocol"] = joint.protocol
     try:
         info["position"] = joint.get_position()
     except NotHomedError:
@@ -44,6 +54,9 @@ def run(args: argparse.Namespace, session: Session) -> int:
                 busy=joint.is_busy())
     link = session.bus.stats.link(jc.address)
     info["link"] = {"transactions": link.transactions, "failed_attempts": link.failed_attempts}
+    if joint.v2 is not None:
+        info["v2_link"] = asdict(joint.v2.stats)
+        joint.close()  # back to the legacy map for whoever comes next
     session.emit(info, _table(info, jc, session))
     return 0
 
@@ -56,15 +69,19 @@ def _table(info: dict[str, Any], jc: Any, session: Session) -> Table:
     if "identity_error" in info:
         rows.append(("identity", f"unavailable ({info['identity_error']})"))
     else:
-        rows += [("firmware", f"{info['firmware']} (protocol {info['protocol']}, joint id {info['joint_id']})"),
+        rows += [("firmware", f"{info['firmware']} (protocol version {info['protocol_version']}, "
+                  f"joint id {info['joint_id']})"),
                  ("spec hash", f"{info['spec_hash']} {'ok' if info['spec_matches'] else 'MISMATCH'}"),
                  ("rejected frames", f"{info['rejected_frames']}"
                   + (f" (last: {info['last_rejected']})" if info["last_rejected"] else ""))]
-    rows += [("position", "not homed" if info["position"] is None else report.value(info["position"], jc)),
+    rows += [("protocol", str(info["protocol"])),
+             ("position", "not homed" if info["position"] is None else report.value(info["position"], jc)),
              ("velocity", report.value(info["velocity"], jc, per_second=True)),
              ("flags", "|".join(info["flags"]) or "-"),
              ("state", ", ".join(f"{k}" if info[k] else f"not {k}" for k in ("homed", "enabled", "stalled", "busy"))),
              ("link", f"{info['link']['transactions']} transactions, {info['link']['failed_attempts']} failed attempts")]
+    if "v2_link" in info:
+        rows.append(("v2 link", ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in info["v2_link"].items())))
     table = Table(title=f"{info['joint']} on {session.bus.describe()}", show_header=False)
     for key, value in rows:
         table.add_row(key, value)

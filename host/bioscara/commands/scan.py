@@ -17,13 +17,14 @@ from rich.table import Table
 from .. import report
 from ..errors import BioscaraError
 from ..firmware import protocol as P
+from ..firmware import protocol_v2 as V
 from ..joint import Joint
 from ..session import Session
 
 NAME = "scan"
 HELP = ("list what answers on the bus (identity, firmware, spec hash, flags) and check it against the "
         "configuration: missing, misaddressed and unexpected joints are problems (exit status 1)")
-COLUMNS = ("address", "joint", "kind", "firmware", "spec hash", "flags", "problems")
+COLUMNS = ("address", "joint", "kind", "firmware", "protocols", "spec hash", "flags", "problems")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -48,7 +49,8 @@ def probe(session: Session, addr: int, configured: str | None) -> dict[str, Any]
         return entry
     entry.update(kind="joint", firmware=identity.firmware_version, joint_id=identity.joint_id,
                  protocol=identity.protocol, spec_hash=f"{identity.spec_hash:08x}",
-                 spec_matches=identity.spec_matches)
+                 spec_matches=identity.spec_matches,
+                 protocols="legacy+v2" if identity.protocol >= V.PROTOCOL_V2 else "legacy")
     if not identity.spec_matches:
         entry["problems"].append(f"spec hash {identity.spec_hash:08x} differs from this host's {P.SPEC_HASH:08x}: "
                                  "firmware and host were built from different protocol specs")
@@ -98,7 +100,8 @@ def run(args: argparse.Namespace, session: Session) -> int:
         spec = e.get("spec_hash", "")
         if spec:
             spec = f"{spec} {'ok' if e['spec_matches'] else 'MISMATCH'}"
-        table.add_row(report.address(e["address"]), e["joint"] or "-", e["kind"], e.get("firmware", ""), spec,
+        table.add_row(report.address(e["address"]), e["joint"] or "-", e["kind"], e.get("firmware", ""),
+                      e.get("protocols", ""), spec,
                       "|".join(e.get("flags", [])) or ("-" if e["answers"] else ""), "; ".join(e["problems"]),
                       style="red" if e["problems"] else None)
     session.emit(entries, table if entries else "nothing answers and nothing is configured")

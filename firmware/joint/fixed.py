@@ -1,0 +1,79 @@
+"""Fixed-point numbers for the 1 kHz path: every float on the board is a heap object, ints are not.
+
+A value in "Qn" is the integer round(x * 2**n). Every result and every intermediate here stays a
+small int (|v| <= 2**30 - 1 on 32-bit ports), so nothing allocates. The legacy wire carries IEEE
+float32; `f32_to_q` and `pack_q` convert on its bits, so the bytes are exactly those of
+struct.pack("<f", n / 2**q).
+
+    ANGLE_Q   motor degrees          (Q12: 1/4096 degree, up to +-262 143 degrees)
+    RPM_Q     motor rpm              (Q16: up to +-16 383 rpm)
+    STEPS_Q   full steps/s and /s^2  (Q4)
+"""
+
+import struct
+
+try:
+    from micropython import const
+except ImportError:
+    def const(value):
+        return value
+
+ANGLE_Q = const(12)
+RPM_Q = const(16)
+STEPS_Q = const(4)
+LIMIT = const(0x3FFFFFFF)  # the largest small int on 32-bit ports
+
+
+def muldiv(a, num, den):
+    """floor(a * num / den) for a >= 0 and num * den < 2**30, without a long intermediate."""
+    q = a // den
+    return q * num + (a - q * den) * num // den
+
+
+def i32(buf, off):
+    """The little-endian int32 at buf[off:off + 4] (a long int, allocated, only beyond +-2**30)."""
+    hi = buf[off + 3]
+    low = buf[off] | (buf[off + 1] << 8) | (buf[off + 2] << 16)
+    if hi < 0x40:
+        return (hi << 24) | low
+    if hi >= 0xC0:
+        return ((hi - 256) << 24) | low
+    return struct.unpack_from("<i", buf, off)[0]
+
+
+def f32_to_q(buf, off, q):
+    """round(x * 2**q) of the little-endian float32 x at buf[off:off + 4], saturated to +-LIMIT.
+    NaN and infinities (rejected by the protocol's checks before this runs) saturate too."""
+    b3 = buf[off + 3]
+    exp = ((b3 & 0x7F) << 1) | (buf[off + 2] >> 7)
+    if exp == 0:
+        return 0  # zero or a denormal: below 2**-126
+    mant = ((buf[off + 2] & 0x7F) << 16) | (buf[off + 1] << 8) | buf[off] | 0x800000
+    # x = mant * 2**(exp - 150); the result is mant * 2**(exp - 150 + q), rounded half away.
+    shift = exp - 150 + q
+    if shift >= 0:
+        value = LIMIT if shift > 6 else mant << shift  # mant < 2**24: at most 2**30 - 1 after <<6
+        if value > LIMIT:
+            value = LIMIT
+    elif shift < -25:
+        value = 0
+    else:
+        value = ((mant >> (-shift - 1)) + 1) >> 1
+    return -value if b3 & 0x80 else value
+
+
+def pack_q(buf, off, n, q):
+    """Write float32(n / 2**q) little-endian at buf[off:off + 4] (exact while |n| < 2**24)."""
+    struct.pack_into("<f", buf, off, n)  # an int argument: converted in C, no float object
+    if n == 0:
+        return
+    exp = ((buf[off + 3] & 0x7F) << 1) | (buf[off + 2] >> 7)
+    exp -= q  # |n| >= 1 and q <= 30: stays a normal number
+    buf[off + 3] = (buf[off + 3] & 0x80) | (exp >> 1)
+    buf[off + 2] = (buf[off + 2] & 0x7F) | ((exp & 1) << 7)
+
+
+def to_q(value, q):
+    """round(value * 2**q) of a Python number (configuration time only: may allocate)."""
+    scaled = value * (1 << q)
+    return int(scaled + 0.5) if scaled >= 0 else -int(-scaled + 0.5)

@@ -1,0 +1,274 @@
+"""Protocol v2 on the joint: the memory map of protocol_v2.py served by `I2CTarget(mem=...)`, and
+the switch between the legacy register map and v2.
+
+`MemLink` runs in the main loop only; the peripheral's C code serves the bus byte by byte from
+`mem` with no Python while SCL is held. Each `poll()`:
+
+1. packs the next state block into a staging buffer (integers only: the position and velocity are
+   the legacy ANGLEMOVED / GETENCODERRPM reply caches, converted from their float32 bits);
+2. swaps, in one short critical section and only while no transaction is in progress (the
+   peripheral's activity bit): takes the mailbox out and marks it empty, notes whether the host
+   wrote past it into the state block, and publishes the staged block. A read therefore always
+   sees one whole block, and the mailbox is never taken half-written;
+3. judges the frame it took: framing, CRC, sequence number, then the legacy register's own checks
+   through the core (`on_frame`), exactly as a legacy write of that register would be judged. The
+   verdict and the new `ack` go out with the next swap, in the same poll.
+
+Allocation-free once constructed (tests run it with the heap locked under MicroPython).
+"""
+
+from . import protocol as P
+from . import protocol_v2 as V
+from .fixed import f32_to_q
+from .i2c_target import IRQ_END_WRITE
+from .irq import COUNTER_MASK  # counters wrap before they would become long ints
+
+try:
+    from micropython import const
+except ImportError:
+    def const(value):
+        return value
+
+_EMPTY_CMD = const(0xFF)  # no register 0xFF: a mailbox the host has not written since the swap
+_EMPTY_SEQ = const(0x80)  # bit 7 set: never a sequence number the host sends
+
+
+def f32_to_fixed(buf, off, q, limit):
+    """round(float32 at buf[off:] x 2**q), saturated to +/-limit. Integer arithmetic only."""
+    value = f32_to_q(buf, off, q)
+    if value > limit:
+        return limit
+    if value < -limit:
+        return -limit
+    return value
+
+
+class MemLink:
+    """Protocol v2 for one joint: create it, serve `mem` with an `I2CTarget(mem=..., mem_addrsize=0)`,
+    then `attach` that target and its activity probe."""
+
+    def __init__(self, core, address, critical):
+        self._core = core
+        self._address = address
+        self._irq_off, self._irq_on = critical
+        self._bus_active = None
+        self.target = None
+        self.mem = bytearray(V.MEM_SIZE)
+        view = memoryview(self.mem)
+        self._mailbox = view[V.MAILBOX:V.MAILBOX + V.MAILBOX_SIZE]
+        self._state = view[V.STATE:V.STATE + V.STATE_SIZE]
+        self._empty = bytearray(V.MAILBOX_SIZE)
+        for i in range(V.MAILBOX_SIZE):
+            self._empty[i] = _EMPTY_CMD
+        self._empty[V.M_SEQ] = _EMPTY_SEQ
+        self._rx = bytearray(V.MAILBOX_SIZE)
+        self._last = bytearray(self._empty)  # the last frame accepted (retries are ignored)
+        self._staged = bytearray(V.STATE_SIZE)
+        self._published = bytearray(V.STATE_SIZE)
+        self._seen_state = bytearray(V.STATE_SIZE)
+        self._frame = bytearray(1 + V.PAYLOAD_SIZE)
+        self._mailbox[:] = self._empty
+        self.ack = 0
+        self.verdict = V.REASON_OK
+        # Link statistics (the joint's side): every frame taken, and why each was not applied.
+        self.writes = 0  # END_WRITE events (soft IRQ): frames, polls, probes
+        self._seen_writes = 0
+        self.frames = 0
+        self.applied = 0
+        self.polls = 0
+        self.retries = 0
+        self.crc_errors = 0
+        self.sequence_errors = 0
+        self.frame_errors = 0
+        self.rejected = 0  # passed the link checks, refused by the command's own checks
+        self.deferred = 0  # swaps postponed because a transaction was in progress
+        self.last_write_ms = core.clock.ticks_ms()
+        self._pack()
+        self._published[:] = self._staged
+        self._state[:] = self._staged
+        self._on_write = self._count_write  # bound once: the soft IRQ must not build it
+
+    def attach(self, target, bus_active):
+        self.target = target
+        self._bus_active = bus_active
+        target.irq(self._on_write, trigger=IRQ_END_WRITE, hard=False)
+
+    def detach(self):
+        if self.target is not None:
+            self.target.irq(None, trigger=0, hard=False)
+            self.target = None
+
+    def _count_write(self, target):
+        self.writes = (self.writes + 1) & COUNTER_MASK
+
+    # ---- main loop ----
+
+    def poll(self):
+        """Exchange mailbox and state with the bus and judge what arrived; False if the bus was
+        busy (the swap is retried at the next poll)."""
+        if self.writes != self._seen_writes:
+            self._seen_writes = self.writes
+            self.last_write_ms = self._core.clock.ticks_ms()
+            self._core.host_seen()
+        for _ in range(2):
+            self._pack()
+            took = self._swap()
+            if took < 0:
+                self.deferred = (self.deferred + 1) & COUNTER_MASK
+                return False
+            if not took:
+                return True
+            self._judge(took == 2)
+        return True
+
+    def _swap(self):
+        """-1: bus busy; 0: published, no frame; 1: frame taken; 2: frame taken, host overflowed."""
+        state = self._irq_off()
+        if self._bus_active():
+            self._irq_on(state)
+            return -1
+        self._seen_state[:] = self._state
+        self._rx[:] = self._mailbox
+        self._mailbox[:] = self._empty
+        self._state[:] = self._staged
+        self._irq_on(state)
+        overflow = self._seen_state != self._published
+        self._published[:] = self._staged
+        if self._rx == self._empty:
+            return 2 if overflow else 0
+        return 2 if overflow else 1
+
+    def _judge(self, overflow):
+        rx = self._rx
+        self.frames = (self.frames + 1) & COUNTER_MASK
+        if overflow or rx[V.M_SEQ] & _EMPTY_SEQ:
+            self.frame_errors = (self.frame_errors + 1) & COUNTER_MASK
+            self.verdict = V.REASON_FRAME
+            return
+        if V.mailbox_crc(rx, 0, self._address) != rx[V.M_CRC]:
+            self.crc_errors = (self.crc_errors + 1) & COUNTER_MASK
+            self.verdict = V.REASON_CRC
+            return
+        ahead = (rx[V.M_SEQ] - self.ack) & V.SEQ_MASK
+        if ahead == 0 and rx == self._last:
+            self.retries = (self.retries + 1) & COUNTER_MASK  # the host retried a transfer: applied once, verdict unchanged
+            return
+        if ahead == 0 or ahead >= V.SEQ_WINDOW:
+            self.sequence_errors = (self.sequence_errors + 1) & COUNTER_MASK
+            self.verdict = V.REASON_SEQUENCE
+            return
+        self.ack = rx[V.M_SEQ]
+        self._last[:] = rx
+        self.verdict = self._apply(rx)
+        if self.verdict == V.REASON_OK:
+            if rx[V.M_CMD] == V.CMD_NONE:
+                self.polls = (self.polls + 1) & COUNTER_MASK
+            else:
+                self.applied = (self.applied + 1) & COUNTER_MASK
+        else:
+            self.rejected = (self.rejected + 1) & COUNTER_MASK
+
+    def _apply(self, rx):
+        cmd = rx[V.M_CMD]
+        if cmd == V.CMD_NONE:
+            return V.REASON_OK
+        reg = P.BY_ADDR[cmd]
+        if not V.is_command(reg):
+            return V.REASON_COMMAND
+        n = reg.wsize
+        for i in range(V.M_PAYLOAD + n, V.M_PAYLOAD + V.PAYLOAD_SIZE):
+            if rx[i]:
+                return V.REASON_VALUE  # the padding must be zero
+        frame = self._frame
+        frame[0] = cmd
+        for i in range(n):
+            frame[1 + i] = rx[V.M_PAYLOAD + i]
+        core = self._core
+        before = core.rejects
+        core.on_frame(frame, 1 + n)
+        if core.rejects == before:
+            return V.REASON_OK
+        return V.FROM_LEGACY[core.cached_reply(P.LASTERROR)[0]]
+
+    def _pack(self):
+        core = self._core
+        out = self._staged
+        out[0] = (V.STATUS_MARKER | (self.verdict << V.REASON_SHIFT)
+                  | (core.flags & V.STATUS_FLAGS))
+        pos = f32_to_fixed(core.cached_reply(P.ANGLEMOVED), 0, V.POSITION_Q, V.POSITION_MAX)
+        vel = f32_to_fixed(core.cached_reply(P.GETENCODERRPM), 0, V.VELOCITY_Q, V.VELOCITY_MAX)
+        p = V.S_POSITION - V.STATE
+        out[p] = pos & 0xFF
+        out[p + 1] = (pos >> 8) & 0xFF
+        out[p + 2] = (pos >> 16) & 0xFF
+        v = V.S_VELOCITY - V.STATE
+        out[v] = vel & 0xFF
+        out[v + 1] = V.VELOCITY_MARKER | ((vel >> 8) & 0x7F)
+        out[V.S_ACK - V.STATE] = self.ack
+        out[V.S_CRC - V.STATE] = V.state_crc(out, 0, self._address)
+
+
+class ProtocolSwitch:
+    """Which map the joint serves. It boots legacy (the original host works unchanged); the
+    legacy PROTOCOL register (2) moves it to v2; the v2 PROTOCOL command (1) or `SILENCE_MS`
+    without a write from the host moves it back. The switch happens in the main loop.
+
+    `make_target(mem)` creates the `I2CTarget` (mem None: the legacy IRQ target; else the v2
+    memory with `mem_addrsize=0`), `legacy_adapter(target)` the legacy IRQ path on it, and
+    `bus_active_for(target)` the target's activity probe (a callable, True mid-transaction).
+    """
+
+    def __init__(self, core, address, make_target, legacy_adapter, critical, bus_active_for):
+        self._core = core
+        self._address = address
+        self._make_target = make_target
+        self._legacy_adapter = legacy_adapter
+        self._critical = critical
+        self._bus_active_for = bus_active_for
+        self.protocol = V.PROTOCOL_LEGACY
+        self.switches = 0
+        self.link = None
+        self.target = make_target(None)
+        self.adapter = legacy_adapter(self.target)
+
+    def service(self):
+        """Main loop, after the core's iteration."""
+        core = self._core
+        request = core.protocol_request
+        if request:
+            core.protocol_request = 0
+            if request != self.protocol:
+                self._switch(request)
+        link = self.link
+        if link is not None:
+            link.poll()
+            silent = core.clock.ticks_diff(core.clock.ticks_ms(), link.last_write_ms)
+            if silent > V.SILENCE_MS:
+                core.log.warn("v2 host silent for %d ms: serving the legacy map" % silent)
+                self._switch(V.PROTOCOL_LEGACY)
+
+    def _leave(self):
+        if self.link is not None:
+            self.link.detach()
+            self.link = None
+        if self.adapter is not None:
+            self.adapter.deinit()
+            self.adapter = None
+        self.target.deinit()
+
+    def _switch(self, protocol):
+        self._leave()
+        if protocol == V.PROTOCOL_V2:
+            link = MemLink(self._core, self._address, self._critical)
+            self.target = self._make_target(link.mem)
+            link.attach(self.target, self._bus_active_for(self.target))
+            self.link = link
+        else:
+            self.target = self._make_target(None)
+            self.adapter = self._legacy_adapter(self.target)
+        self.protocol = protocol
+        self.switches += 1
+        self._core.log.info("serving protocol %s" % ("v2" if protocol == V.PROTOCOL_V2 else "legacy"))
+
+    def deinit(self):
+        self._leave()

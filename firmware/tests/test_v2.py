@@ -1,0 +1,219 @@
+"""Protocol v2 on the joint: the memory map served by the mem-mode target, the switch between the
+two maps, every rejection path, whole-block reads, and an allocation-free main loop."""
+
+import struct
+
+from joint import protocol as P, protocol_v2 as V
+from joint.sim.i2c_target import FakeI2CTarget
+from joint.v2 import f32_to_fixed
+
+from v2rig import V2Rig
+
+try:
+    from micropython import heap_lock, heap_unlock
+except ImportError:
+    def heap_lock():
+        pass
+
+    def heap_unlock():
+        pass
+
+
+def _f32(value):
+    return struct.pack("<f", value)
+
+
+def test_crc8_smbus_matches_the_catalogue_and_the_smbus_pec_vectors():
+    assert V.crc8(b"123456789", 0, 9) == 0xF4
+    assert V.crc8(bytes((0xB4, 0x06, 0xAB, 0xCD)), 0, 4) == 0x5F
+    assert V.crc8(bytes((0xB4, 0x06, 0xB5, 0x26, 0x3A)), 0, 5) == 0x66
+    assert V.crc8(bytes((0x84, 0x10, 0x85, 0x55)), 0, 4) == 0x90
+    assert V.crc8_byte(0x01) == 0x07 and V.crc8_byte(0xFF) == 0xF3
+
+
+def test_the_layout_fits_one_combined_transaction_of_156_bit_times():
+    assert V.MAILBOX + V.MAILBOX_SIZE == V.STATE and V.STATE + V.STATE_SIZE == V.MEM_SIZE
+    assert P.wire_bits(V.MAILBOX_SIZE, V.STATE_SIZE) == V.TRANSACTION_BITS == 156
+    assert 4 * V.TRANSACTION_BITS <= 630
+    assert 4 * 3 * P.wire_bits(5, 1) == 900  # legacy: a command and two register reads per joint
+
+
+def test_float32_bits_convert_to_fixed_point_without_floats():
+    for value in (0.0, 1.0, -1.0, 12.5, -0.0078125, 359.99, 30600.0, -12211.3, 0.004, 1e-30):
+        expected = int(abs(value) * 64 + 0.5) * (-1 if value < 0 else 1)  # half away from zero
+        assert f32_to_fixed(_f32(value), 0, 6, V.POSITION_MAX) == expected, value
+    assert f32_to_fixed(_f32(1e9), 0, 6, V.POSITION_MAX) == V.POSITION_MAX
+    assert f32_to_fixed(_f32(-1e9), 0, 6, V.POSITION_MAX) == -V.POSITION_MAX
+    assert f32_to_fixed(_f32(5000.0), 0, 3, V.VELOCITY_MAX) == V.VELOCITY_MAX
+    assert f32_to_fixed(_f32(float("inf")), 0, 3, V.VELOCITY_MAX) == V.VELOCITY_MAX
+    assert abs(f32_to_fixed(_f32(float("nan")), 0, 3, V.VELOCITY_MAX)) == V.VELOCITY_MAX
+
+
+def test_a_fresh_joint_serves_legacy_and_switches_to_v2_and_back():
+    rig = V2Rig()
+    assert rig.switch.protocol == V.PROTOCOL_LEGACY
+    assert rig.xfer(bytes([P.PING]), 2) == b"O\x0c"
+    rig.to_v2()
+    flags, verdict, _, _, _ = rig.state()
+    assert flags == P.FLAGS_AT_BOOT and verdict == V.REASON_OK
+    assert rig.command("PROTOCOL", 1) == (V.REASON_OK, P.FLAGS_AT_BOOT)
+    rig.tick()
+    assert rig.switch.protocol == V.PROTOCOL_LEGACY
+    assert rig.xfer(bytes([P.PING]), 2) == b"O\x0c", "legacy again, without a power cycle"
+
+
+def test_host_silence_returns_a_v2_joint_to_legacy():
+    rig = V2Rig()
+    rig.to_v2()
+    rig.state()
+    rig.run_ms(V.SILENCE_MS - 5)
+    assert rig.switch.protocol == V.PROTOCOL_V2
+    rig.run_ms(10)
+    assert rig.switch.protocol == V.PROTOCOL_LEGACY
+    assert any("serving the legacy map" in line for line in rig.lines)
+
+
+def test_commands_are_applied_through_the_shared_core_with_the_legacy_checks():
+    rig = V2Rig()
+    rig.to_v2()
+    verdict, flags = rig.command("SETUP", 60, 30, 0, 0)
+    assert verdict == V.REASON_OK and not flags & P.FLAG_NOTENABLED
+    assert ("set_current", 60) in rig.motor.calls and ("set_hold_current", 30) in rig.motor.calls
+    rig.motor.calls = []
+    assert rig.command("MOVESTEPS", 1234)[0] == V.REASON_OK
+    assert rig.motor.calls == [("move_steps", 1234)]
+    rig.motor.angle = -12.5
+    rig.motor.rpm = 100.25
+    rig.tick()
+    flags, _, position, velocity, _ = rig.state()
+    assert position == -800 and velocity == 802
+
+
+def test_invalid_values_unknown_commands_and_busy_are_rejected_and_reported():
+    rig = V2Rig()
+    rig.to_v2()
+    rig.command("SETUP", 60, 30, 0, 0)
+    rig.motor.calls = []
+    bad = bytearray(rig.frame("SETUP", 60, 30, 0, 0))
+    bad[1] = 101  # drive current above 100 %
+    bad[V.M_CRC] = V.mailbox_crc(bad, 0, rig.address)
+    rig.exchange(bytes(bad))
+    assert V.decode_state(rig.address, rig.xfer(rig.frame(), 8))[1] == V.REASON_VALUE
+    rig.tick()
+    for cmd in (0x01, P.IDENTITY, P.GETMOTORSTATE):
+        raw = V.encode_frame(rig.address, cmd, b"", rig.frame()[V.M_SEQ])
+        rig.exchange(raw)
+        assert V.decode_state(rig.address, rig.xfer(rig.frame(), 8))[1] == V.REASON_COMMAND
+        rig.tick()
+    padded = bytearray(rig.frame("SETCURRENT", 50))
+    padded[2] = 7  # padding after the 1-byte payload must be zero
+    padded[V.M_CRC] = V.mailbox_crc(padded, 0, rig.address)
+    rig.exchange(bytes(padded))
+    assert V.decode_state(rig.address, rig.xfer(rig.frame(), 8))[1] == V.REASON_VALUE
+    rig.tick()
+    assert rig.command("HOME", 1, 10, 50, 40)[0] == V.REASON_OK
+    assert rig.command("HOME", 1, 10, 50, 40)[0] == V.REASON_BUSY
+    assert rig.link.rejected == 6 and rig.motor.names().count("set_current") == 0
+
+
+def ack_of(rig):
+    """A poll that is a retry of the last accepted frame: judged without changing the verdict."""
+    return rig.link.ack
+
+
+def test_link_corruptions_are_never_applied_and_are_reported_and_counted():
+    rig = V2Rig()
+    rig.to_v2()
+    rig.command("SETUP", 60, 30, 0, 0)
+    rig.motor.calls = []
+    good = rig.frame("MOVESTEPS", 100)
+    flipped = bytearray(good)
+    flipped[2] ^= 0x10
+    cases = (
+        (bytes(flipped), V.REASON_CRC),
+        (good[:5], V.REASON_FRAME),  # truncated: the sequence byte never arrived
+        (good + b"\x00", V.REASON_FRAME),  # one byte too many: it landed on the state block
+    )
+    for raw, reason in cases:
+        rig.exchange(raw)
+        flags, verdict, _, _, ack = V.decode_state(rig.address, rig.xfer(rig.frame(seq=ack_of(rig)), 8))
+        rig.tick()
+        assert verdict == reason, (raw, verdict)
+    assert rig.motor.calls == [] and rig.link.crc_errors == 1 and rig.link.frame_errors == 2
+    retries = rig.link.retries
+    rig.exchange(good)  # now intact: applied
+    rig.exchange(good)  # the same frame again (a retry): ignored, verdict unchanged
+    state = V.decode_state(rig.address, rig.xfer(rig.frame(), 8))
+    assert state[1] == V.REASON_OK and state[4] == good[V.M_SEQ]
+    assert rig.motor.calls == [("move_steps", 100)] and rig.link.retries == retries + 1
+    rig.tick()
+    rig.exchange(good)  # replayed later: stale
+    assert V.decode_state(rig.address, rig.xfer(rig.frame(), 8))[1] == V.REASON_SEQUENCE
+    assert rig.motor.calls == [("move_steps", 100)]
+
+
+def test_a_frame_for_another_joint_fails_its_crc():
+    rig = V2Rig()
+    rig.to_v2()
+    rig.command("SETUP", 60, 30, 0, 0)
+    rig.motor.calls = []
+    elsewhere = V.encode_frame(rig.address ^ 0x01, P.MOVESTEPS, P.register("MOVESTEPS").encode(5),
+                               rig.seq + 1)
+    rig.exchange(elsewhere)
+    assert rig.motor.calls == [] and rig.link.crc_errors == 1
+
+
+def test_a_read_never_sees_a_half_written_block():
+    rig = V2Rig()
+    rig.to_v2()
+    rig.state()
+    target = rig.switch.target
+    ticks = [0]
+
+    def main_loop_between_bytes():
+        rig.motor.angle += 1.0  # a new state every pass
+        rig.tick()
+        ticks[0] += 1
+    target.on_wire = main_loop_between_bytes
+    deferred = rig.link.deferred
+    for _ in range(20):
+        state = V.decode_state(rig.address, rig.xfer(rig.frame(), V.STATE_SIZE))
+        assert state is not None, "torn block"
+    target.on_wire = None
+    assert ticks[0] > 0 and rig.link.deferred > deferred
+    rig.tick()
+    assert V.decode_state(rig.address, rig.xfer(rig.frame(), 8))[2] == int(rig.motor.angle) * 64
+
+
+def test_the_main_loop_pass_allocates_nothing():
+    rig = V2Rig()
+    rig.to_v2()
+    rig.command("SETUP", 60, 30, 0, 0)
+    frames = [rig.frame("SETRPM", 10.0), rig.frame(), rig.frame("MOVESTEPS", 3), rig.frame()]
+    target = rig.switch.target
+    for raw in frames:
+        target.transfer(raw, V.STATE_SIZE)
+        heap_lock()
+        try:
+            rig.switch.service()
+        finally:
+            heap_unlock()
+    assert rig.link.applied >= 3 and rig.link.crc_errors == 0
+
+
+def test_memory_mode_follows_micropython():
+    mem = bytearray(b"01234567")
+    target = FakeI2CTarget(0x42, mem=mem)
+    target.transfer(bytes([6]) + b"test", 0)
+    assert mem == bytearray(b"st2345te")
+    mem[:] = b"01234567"
+    assert target.transfer(bytes([0]), 12) == b"012345670123"
+    assert target.transfer(bytes([2]), 4) == b"2345"
+    assert target.transfer(None, 4) == b"7012", "the prefetch skips a byte"
+    events = []
+    target.irq(lambda t: events.append((t.flags(), t.memaddr)), trigger=16 | 32)
+    target.transfer(bytes([3]), 2)
+    target.transfer(bytes([5, 1, 2]), 0)
+    assert events == [(16, 3), (32, 5)], "no END_WRITE for a write that only set the address"
+    flat = FakeI2CTarget(0x42, mem=bytearray(range(15)), mem_addrsize=0)
+    assert flat.transfer(bytes(7), 8) == bytes(range(7, 15)), "addrsize 0: write at 0, read after it"
