@@ -99,7 +99,7 @@ def test_the_deadman_stops_a_joint_when_the_host_stops_writing(arm: Arm, comm: C
     comm.run_for(1.0)
     joint = bus.joint(0x14)
     assert abs(joint.stepper.encoder_rpm()) > 50
-    bus.sleep(0.1)  # the host goes silent
+    bus.sleep(arm["j4"].config.watchdog_ms / 1000 + 0.05)  # the host goes silent past its watchdog
     assert joint.core.flags & P.FLAG_NOTENABLED
     assert joint.stepper.driver_rpm() == 0.0, "the firmware stopped the motor on its own"
     bus.sleep(0.5)

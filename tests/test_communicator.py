@@ -78,7 +78,7 @@ def test_the_bus_limits_the_rate_with_four_joints_at_500_hz(arm: Arm, bus: SimBu
     else:
         # v2: 4 x 156 bit times = 1.56 ms: 500 Hz fits; the ceiling is 641 Hz.
         # (the first cycle also refreshes the flags, older than 20 ms after the homing)
-        assert comm.stats.overruns <= 1 and comm.stats.rate == pytest.approx(500.0, rel=1e-3)
+        assert comm.stats.overruns <= 1 and comm.stats.rate == pytest.approx(500.0, rel=0.01)
         assert comm.stats.duration_mean == pytest.approx(4 * 156 / 400_000, rel=0.02)
 
 

@@ -89,7 +89,8 @@ REASON_FRAME = const(3)  # link: frame too long or too short
 REASON_COMMAND = const(4)  # unknown, unsupported or non-writable command
 REASON_VALUE = const(5)  # payload out of range (the legacy register's check)
 REASON_BUSY = const(6)  # a blocking command is running, or the command queue is full
-REASON_DISABLED = const(7)  # joint disabled (invalid configuration or motor fault)
+REASON_DISABLED = const(7)  # joint disabled (invalid configuration, motor fault), or motion refused
+# while not enabled or stalled
 REASONS = (
     (REASON_OK, "ok"),
     (REASON_CRC, "CRC mismatch"),
@@ -98,13 +99,15 @@ REASONS = (
     (REASON_COMMAND, "not a v2 command"),
     (REASON_VALUE, "value out of range"),
     (REASON_BUSY, "busy or command queue full"),
-    (REASON_DISABLED, "joint disabled"),
+    (REASON_DISABLED, "joint disabled, not enabled or stalled"),
 )
 LINK_REASONS = (REASON_CRC, REASON_SEQUENCE, REASON_FRAME)
 
 # Legacy reject reason -> v2 verdict.
+# Motion refused while not enabled or stalled shares REASON_DISABLED: the status flags say which.
 FROM_LEGACY = bytes((REASON_OK, REASON_COMMAND, REASON_COMMAND, REASON_COMMAND, REASON_VALUE,
-                     REASON_BUSY, REASON_BUSY, REASON_DISABLED))
+                     REASON_BUSY, REASON_BUSY, REASON_DISABLED, REASON_DISABLED, REASON_DISABLED,
+                     REASON_VALUE))
 
 # The state block's fields, declared like the legacy registers' (name, kind, unit, scale).
 STATE_FIELDS = (

@@ -71,7 +71,7 @@ class JointConfig:
     max_acceleration: float  # joint units/s^2
     max_velocity: float  # joint units/s
     homing: HomingConfig
-    watchdog_ms: int = 50  # host-silence timeout for every motion mode, 0: the firmware's original
+    watchdog_ms: int = 100  # host-silence timeout for every motion mode, 0: the firmware's original
 
 
 @dataclass(frozen=True)
@@ -256,7 +256,7 @@ _JOINT_KEYS = {
     "drive_current": _int(0, 100),
     "max_acceleration": _positive(),
     "max_velocity": _positive(),
-    "watchdog_ms": _int(0, 5000, default=50),
+    "watchdog_ms": _int(0, 5000, default=100),
 }
 _HOMING_KEYS = {
     "speed": _positive(),

@@ -651,6 +651,8 @@ class Joint:
     def _v2_error(self, exc: V2Rejected) -> BioscaraError:
         if exc.verdict == V.REASON_BUSY:
             return IncorrectStateError(exc.detail, joint=self.name)
+        if exc.verdict == V.REASON_DISABLED and exc.flags & P.FLAG_STALL:
+            return StalledError(exc.detail, joint=self.name)
         if exc.verdict == V.REASON_DISABLED:
             return NotEnabledError(exc.detail, joint=self.name)
         if exc.verdict in (V.REASON_VALUE, V.REASON_COMMAND):

@@ -50,9 +50,10 @@ class V2LinkStats:
 class V2Rejected(BioscaraError):
     """The joint refused a v2 command (its verdict is in `verdict`)."""
 
-    def __init__(self, message: str, verdict: int, joint: str | None = None) -> None:
+    def __init__(self, message: str, verdict: int, joint: str | None = None, flags: int = 0) -> None:
         super().__init__(message, joint=joint)
         self.verdict = verdict
+        self.flags = flags  # the status flags of the state that carried the verdict
 
 
 class V2Link:
@@ -150,7 +151,7 @@ class V2Link:
         if state.verdict != V.REASON_OK and pending is not None and pending[0] == previous:
             self.stats.rejected += 1
             raise V2Rejected(f"the joint rejected the command: {V.reason_string(state.verdict)}",
-                             state.verdict, self.name)
+                             state.verdict, self.name, state.flags)
 
     def post(self, cmd: int, payload: bytes) -> V2State | None:
         """Send a frame without waiting for or checking its verdict."""
@@ -177,7 +178,7 @@ class V2Link:
             if state.verdict != V.REASON_OK:
                 self.stats.rejected += 1
                 raise V2Rejected(f"the joint rejected {_name(cmd)}: {V.reason_string(state.verdict)}",
-                                 state.verdict, self.name)
+                                 state.verdict, self.name, state.flags)
             return state
         self.stats.unacknowledged += 1
         raise CommError(f"joint {self.name} did not acknowledge {_name(cmd)} "
