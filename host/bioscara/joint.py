@@ -148,7 +148,14 @@ class Joint:
         """Stop using the joint (no motor I/O; call `disable` first to de-energize). Idempotent.
 
         A joint speaking v2 is returned to the legacy map, so any host can take over at once; if
-        that fails (bus down) it returns by itself after protocol_v2.SILENCE_MS."""
+        that fails (bus down) it returns by itself after protocol_v2.SILENCE_MS. A watchdog this
+        host turned on is turned off first: a joint left holding keeps holding, as it would for
+        the original host (whose deadman covers velocity only)."""
+        if self.watchdog_ms and self._open:
+            try:
+                self.set_watchdog(0)
+            except BioscaraError as exc:
+                log.info("joint %s keeps its watchdog: %s", self.name, exc)
         if self.v2 is not None and self._open:
             try:
                 self.use_legacy()
