@@ -41,7 +41,7 @@ class SimMeter:
 
 def homed_arm(realtime: bool = False, protocol: str = "auto"):  # type: ignore[no-untyped-def]
     config = load_config()
-    config = replace(config, sim=replace(config.sim, realtime=realtime))
+    config = replace(config, bus=replace(config.bus, url="sim:realtime" if realtime else "sim:virtual"))
     bus = open_arm_bus(config)
     arm = open_arm(config, bus, protocol)
     arm.configure()

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 from collections.abc import Iterator
+from dataclasses import replace
+from pathlib import Path
 
 import pytest
 
@@ -32,9 +34,22 @@ class Recorder:
         self.frames.clear()
 
 
+@pytest.fixture(autouse=True)
+def private_home(tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch) -> Path:
+    """Every test gets its own state and config directories, and `sim:` means the in-process
+    simulator in virtual time unless a test asks for the shared one (tests/test_sim_service.py)."""
+    home = tmp_path_factory.mktemp("home")
+    monkeypatch.setenv("XDG_STATE_HOME", str(home / "state"))
+    monkeypatch.setenv("XDG_CONFIG_HOME", str(home / "config"))
+    monkeypatch.setenv("BIOSCARA_BUS", "sim:virtual")
+    return home
+
+
 @pytest.fixture
 def config() -> ArmConfig:
-    return load_config()
+    """The shipped configuration on the in-process simulator (virtual time)."""
+    config = load_config()
+    return replace(config, bus=replace(config.bus, url="sim:virtual"))
 
 
 @pytest.fixture

@@ -124,7 +124,7 @@ def test_joints_come_in_arm_order_whatever_the_file_order(tmp_path: Path) -> Non
 def test_use_mock_hardware_selects_the_simulated_bus(tmp_path: Path) -> None:
     config = load_config(write(tmp_path, '[bus]\nurl = "smbus:1"\nuse_mock_hardware = true\n' + MINIMAL))
     assert config.bus.url == "smbus:1"
-    assert config.bus_url == "sim:"
+    assert config.bus_url == "sim:virtual"
 
 
 def test_parse_config_takes_a_parsed_table() -> None:

@@ -110,6 +110,8 @@ def test_cli_sends_commands_and_prints_the_answers(server: SimServer, capsys) ->
     out = capsys.readouterr().out
     assert "log level DEBUG" in out and "J2 at 0x12" in out and "trace: 0 samples" in out
     assert main(["console", path, "-c", "log info", "--duration", "0"]) == 0
+    assert main(["console", path, "-c", "frobnicate", "--duration", "0.3"]) == 1, "the joint said error"
+    assert "error: unknown command 'frobnicate'" in capsys.readouterr().out
 
 
 def test_missing_and_busy_ports_fail_with_one_line(server: SimServer, tmp_path, capsys) -> None:
@@ -120,7 +122,7 @@ def test_missing_and_busy_ports_fail_with_one_line(server: SimServer, tmp_path, 
         assert main(["console", server.joint_paths["J3"], "-c", "status"]) == 1
     err = capsys.readouterr().err.strip()
     assert "busy" in err and len(err.splitlines()) == 1
-    assert main(["console", server.joint_paths["J3"], "--plot", "torque"]) == 1
+    assert main(["console", server.joint_paths["J3"], "--plot", "torque"]) == 2
     assert "no trace column torque" in capsys.readouterr().err
 
 

@@ -11,6 +11,7 @@ import hashlib
 import json
 import os
 import pathlib
+from pathlib import Path
 import pty
 import select
 import shutil
@@ -64,6 +65,9 @@ class FakeBoard:
         self.files[path] = data[:-1] + b"!" if path in self.corrupt else data
         if progress:
             progress(len(data))
+
+    def read(self, path: str) -> bytes | None:
+        return self.files.get(path)
 
     def remove(self, path: str) -> None:
         self.log.append(("remove", path))
@@ -267,7 +271,8 @@ def test_a_port_without_a_repl_is_refused(tmp_path):
 
 @pytest.fixture
 def sim_bus():
-    bus = open_arm_bus(load_config())
+    config = load_config()
+    bus = open_arm_bus(replace(config, bus=replace(config.bus, url="sim:virtual")))
     yield bus
     bus.close()
 
@@ -295,7 +300,7 @@ def test_a_mismatching_identity_is_reported(sim_bus, monkeypatch):
 def test_a_joint_that_does_not_answer_is_reported(sim_bus):
     check = flash.check_identity(sim_bus, "J1", 0x21, timeout=0.5)
     assert not check.ok and check.found is None
-    assert check.problems[0].startswith("no answer at 0x21 on sim: within 0.5 s")
+    assert check.problems[0].startswith("no answer at 0x21 on sim:virtual within 0.5 s")
 
 
 # ---- the command ----
@@ -308,7 +313,7 @@ def run_cli(capsys, monkeypatch, board: FakeBoard, *args: str) -> tuple[int, str
 
 
 def test_cli_json_report_with_the_version_check(capsys, monkeypatch):
-    code, out, _ = run_cli(capsys, monkeypatch, FakeBoard(), "--joint", "j1", "--bus", "sim:", "--json")
+    code, out, _ = run_cli(capsys, monkeypatch, FakeBoard(), "--joint", "j1", "--bus", "sim:virtual", "--json")
     assert code == 0
     result = json.loads(out)
     assert result["joint"] == "J1" and result["address"] == 0x11 and result["compiled"] is True
@@ -336,7 +341,7 @@ def test_cli_dry_run(capsys, monkeypatch):
 
 def test_cli_version_mismatch_fails_after_reporting(capsys, monkeypatch):
     expect_another_firmware(monkeypatch)
-    code, out, err = run_cli(capsys, monkeypatch, FakeBoard(), "--joint", "J2", "--bus", "sim:", "--json")
+    code, out, err = run_cli(capsys, monkeypatch, FakeBoard(), "--joint", "J2", "--bus", "sim:virtual", "--json")
     assert code == 1
     assert json.loads(out)["identity"]["problems"] == [f"0x12: firmware {'.'.join(map(str, FIRMWARE_VERSION))}, "
                                                        "expected 9.9.9"]
@@ -429,3 +434,42 @@ def test_mpremote_board_flashes_the_unix_port(unix_port_serial, tmp_path):
     assert not (root / "joint" / "gone.py").exists()
     for path, data in plan.image.files.items():
         assert (root / path.lstrip("/")).read_bytes() == data, path
+
+
+def test_a_joint_config_the_user_wrote_is_validated_then_deployed(capsys, monkeypatch, tmp_path):
+    shipped = json.loads(flash.joint_config("J3")[0])
+    mine = dict(shipped, motor={"backend": "pico", "rsense_ohm": 0.1, "tmc_address": 1, "step": 14, "dir": 15})
+    path = tmp_path / "my_j3.json"
+    path.write_text(json.dumps(mine))
+    board = FakeBoard()
+    code, out, _ = run_cli(capsys, monkeypatch, board, "--joint-config", str(path), "--json")
+    assert code == 0 and json.loads(out)["joint"] == "J3"
+    assert json.loads(board.files["/joint_config.json"])["motor"]["rsense_ohm"] == 0.1
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps(dict(shipped, i2c={"bus": 0, "sda": 5, "scl": 4})))
+    board = FakeBoard()
+    code, _, err = run_cli(capsys, monkeypatch, board, "--joint-config", str(bad))
+    assert code == 2 and "i2c.sda = 5 is not an SDA pin of I2C0" in err and board.log == [], "the board untouched"
+    code, _, err = run_cli(capsys, monkeypatch, FakeBoard(), "--joint-config", str(path), "--joint", "j1")
+    assert code == 2 and "configures j3, not j1" in err
+    code, _, err = run_cli(capsys, monkeypatch, FakeBoard())
+    assert code == 2 and "which joint?" in err
+
+
+def test_show_config_prints_the_boards_joint_config(capsys, monkeypatch):
+    board = FakeBoard()
+    flashed(board, "J2")
+    code, out, _ = run_cli(capsys, monkeypatch, board, "--show-config", "--json")
+    shown = json.loads(out)
+    assert code == 0 and shown["valid"] and shown["config"]["joint"] == "J2" and shown["config"]["address"] == 0x12
+    board.files["/joint_config.json"] = b'{"joint": "J2", "address": 200}'
+    code, out, _ = run_cli(capsys, monkeypatch, board, "--show-config")
+    assert code == 1 and "INVALID" in out and "address" in out
+    code, out, _ = run_cli(capsys, monkeypatch, FakeBoard(), "--show-config")
+    assert code == 1 and "no /joint_config.json" in out
+
+
+def test_a_missing_port_is_explained_like_the_bus_explains_it(capsys, tmp_path):
+    code = cli.main(["flash", str(tmp_path / "ttyACM7"), "--joint", "j1", "--dry-run"])
+    err = capsys.readouterr().err
+    assert code == 1 and "does not exist (is the board plugged in?" in err

@@ -416,6 +416,34 @@ def test_persistence_survives_an_interrupted_write(config: GripperConfig, time_:
     assert g2.get_position() == pytest.approx(0.1)
 
 
+def test_a_save_killed_half_way_leaves_nothing_behind_after_the_next_save(config: GripperConfig,
+                                                                          time_: FakeTime) -> None:
+    def killed_save(width: float) -> None:
+        """A process that is killed between writing its temporary file and renaming it."""
+        pid = os.fork()
+        if pid == 0:
+            os.replace = lambda *args: os._exit(9)  # type: ignore[assignment]
+            g = MockGripper(config, time_)
+            g.enable()
+            g.set_position(width)
+            g.disable()
+            os._exit(0)
+        os.waitpid(pid, 0)
+
+    directory = Path(config.state_file).parent
+    for width in (0.05, 0.06, 0.07):
+        killed_save(width)
+    left = [name for name in os.listdir(directory) if name.endswith(".tmp")]
+    assert len(left) == 1, "each killed save removed the one before it; the last one is left"
+    g = MockGripper(config, time_)
+    g.enable()
+    g.set_position(0.1)
+    time_.now += 1
+    g.disable()
+    assert os.listdir(directory) == ["gripper_position"], "the next save removed them"
+    assert Path(config.state_file).stat().st_mode & 0o777 == 0o600
+
+
 def test_pwm_is_off_even_when_saving_fails(config: GripperConfig, root: Path, time_: FakeTime,
                                            monkeypatch: pytest.MonkeyPatch) -> None:
     g = gripper(config, root, time_)

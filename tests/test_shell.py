@@ -184,7 +184,7 @@ def test_start_stop_restart_the_communicator(console: Console) -> None:
     assert stats[0] == "communicator stopped, target 50 Hz, scheduling: normal"
     assert stats[1].startswith(f"  {cycles} cycles, rate ") and "jitter" in stats[1] and "overruns" in stats[1]
     assert stats[2].startswith("  cycle duration mean ")
-    assert stats[3] == "link health, bus sim:"
+    assert stats[3] == "link health, bus sim:virtual"
     assert stats[4].split() == ["joint", "addr", "transactions", "failed", "attempts", "lost", "last", "error"]
     assert [row.split()[:2] for row in stats[5:]] == [["j1", "0x11"], ["j2", "0x12"], ["j3", "0x13"], ["j4", "0x14"]]
     console.ok("stop")
@@ -269,6 +269,7 @@ def test_interactive_line_editing_history_and_ctrl_c(console: Console, arm: Arm,
     assert arm.lifecycle is Lifecycle.UNCONFIGURED
     assert "+read j1 PING" in history.read_text().splitlines()
     assert "configure" not in history.read_text()
+    assert history.stat().st_mode & 0o777 == 0o600 and history.parent.stat().st_mode & 0o777 == 0o700, "private"
 
 
 def test_the_line_editors_completer_replaces_the_word_being_typed(console: Console) -> None:
@@ -302,3 +303,48 @@ def _wait_for(condition: object, timeout: float = 5.0) -> None:
     while not condition():  # type: ignore[operator]
         assert time.monotonic() < deadline, "timed out"
         time.sleep(0.001)
+
+
+def test_the_shell_keeps_active_joints_alive_and_names_fault_causes(config: ArmConfig) -> None:
+    """In real time the communicator runs whenever the arm is active; `stop` warns; a fault names its cause."""
+    from dataclasses import replace
+
+    from bioscara.hardware import sim_joint_specs
+    # A deadman longer than the joints' 50 ms: this test shares the machine with the rest of the suite.
+    bus = SimBus([replace(spec, deadman_ms=500) for spec in sim_joint_specs(config)], realtime=True)
+    arm = Arm(config, bus)
+    console = Console(config, bus, arm, keep_alive=True)
+    try:
+        console.ok("configure", "activate")
+        assert console.shell.communicator.running, "started by activate"
+        assert "keeps the active joints fed" in console.out[-1]
+        console.ok("mode j4 home", "set j4 home 1")
+        _wait_for(lambda: arm["j4"].state.home == 1.0, timeout=20.0)
+        console.ok("mode j4 position", "set j4 position 2.5", "wait 0.2")
+        assert arm.fault is None and arm["j4"].joint.is_enabled()
+        assert console.shell.communicator.stats.cycles > 0
+        console.ok("stop")
+        assert console.err[-1].startswith("warning: the arm is active") and "deadman" in console.err[-1]
+        console.ok("set j4 position -2.9", "wait 0.05")  # a 0.7 s move starts, then nobody talks to j4
+        bus.sleep(2.0)
+        error = console.fails("wait 0.1")
+        assert "j4: deadman: the joint stopped and disabled itself" in error, error
+    finally:
+        console.shell.close()
+        bus.close()
+
+
+def test_stats_count_from_start_and_restart_resets_them(console: Console) -> None:
+    shell = console.shell
+    console.ok("wait 0.5")  # cycles run by hand, then a pause (the user typing)
+    shell.context.bus.sleep(5.0)
+    console.ok("start 100")
+    _wait_for(lambda: shell.communicator.stats.cycles >= 5)
+    console.ok("stop")
+    assert shell.communicator.stats.cycles < 40 and shell.communicator.stats.period_max < 1.0, \
+        "neither the earlier cycles nor the pause are counted"
+    console.ok("start")
+    _wait_for(lambda: shell.communicator.stats.cycles >= 300)
+    console.ok("restart", "stop")
+    assert shell.communicator.stats.cycles < 300, "restart counts afresh"
+

@@ -176,21 +176,29 @@ def _parse_motor(cfg, motor):
 
 
 def load(path=CONFIG_FILE):
-    """Read and validate the config file at `path`; never raises."""
+    """Read and validate the config file at `path`; never raises (a bad file is a disabled joint)."""
     try:
-        with open(path) as f:
-            text = f.read()
+        with open(path, "rb") as f:
+            raw = f.read()
     except OSError as exc:
-        cfg = parse({}, path)
-        cfg.errors.insert(0, "%s: cannot read the file (%s)" % (path, exc))
-        return cfg
+        return _unusable(path, "cannot read the file (%s)" % (exc,))
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeError:  # MicroPython raises UnicodeError, CPython its subclass
+        return _unusable(path, "not UTF-8 text")
     try:
         data = json.loads(text)
     except ValueError as exc:
-        cfg = parse({}, path)
-        cfg.errors.insert(0, "%s: not valid JSON (%s)" % (path, exc))
-        return cfg
+        return _unusable(path, "not valid JSON (%s)" % (exc,))
+    except (RuntimeError, MemoryError):  # nesting deeper than the parser's recursion (or RAM) allows
+        return _unusable(path, "not valid JSON (nested too deeply)")
     return parse(data, path)
+
+
+def _unusable(path, why):
+    cfg = parse({}, path)
+    cfg.errors.insert(0, "%s: %s" % (path, why))
+    return cfg
 
 
 def default(joint="J1", backend="sim"):

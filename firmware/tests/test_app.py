@@ -76,3 +76,19 @@ def test_no_address_means_not_joining_the_bus():
     core, cfg, log, lines = _boot('{"joint": "J1"}', machine)
     assert app.join_bus(machine, core, cfg, log) is None and machine.targets == []
     assert any("no valid I2C address" in line for line in lines)
+
+
+def test_every_unreadable_config_file_boots_a_disabled_joint_that_says_why():
+    bad = ((b'{"joint": "J1\xff\xfe", "address": 17}', "not UTF-8 text"),
+           (b"[" * 5000 + b"]" * 5000, "JSON"),  # CPython: too deep; MicroPython: not an object
+           (b'{"joint": "J1", "address": 17', "not valid JSON"),
+           (b'{"address": 1e999}', "missing required key joint"),
+           (b"", "not valid JSON"))
+    for raw, why in bad:
+        with open(PATH, "wb") as f:
+            f.write(raw)
+        lines = []
+        core, cfg, log = app.build(Machine(), PATH, VirtualClock(), lines.append)
+        assert core.disabled and not cfg.valid, why
+        assert any(why in line for line in lines), (why, lines)
+        assert any("joint disabled" in line for line in lines), lines

@@ -1,7 +1,9 @@
 """The `bioscara` command line: one module per command in `bioscara.commands`.
 
-Every command accepts `--bus URL`, `--config FILE` and `--json`. Failures the user can act on
-(bus errors, missing devices, bad arguments, broken config files) print one line and exit non-zero.
+A command module may declare `USES`, the common options it takes (`bus`, `config`, `json`; all
+three by default): options a command would ignore are not offered. `--json` and `-v` are accepted
+before the command as well as after it. Failures the user can act on print one line and exit 2
+(usage and configuration errors) or 1 (device and bus errors); nothing prints a traceback.
 """
 
 from __future__ import annotations
@@ -10,52 +12,101 @@ import argparse
 import importlib
 import logging
 import sys
+from collections.abc import Sequence
 
+from . import __version__
 from .arm import PROTOCOLS
 from .bus import Bus
 from .commands import COMMANDS
-from .errors import BioscaraError, ConfigError
+from .errors import BioscaraError, ConfigError, InvalidArgumentError
 from .session import Session
+
+ALL_OPTIONS = ("bus", "config", "json")
+USAGE, DEVICE, INTERNAL = 2, 1, 70  # exit statuses
+
+
+class _Parser(argparse.ArgumentParser):
+    """Usage errors in one line, like every other error."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        self.exit(USAGE, f"error: {message} (`{self.prog} --help` shows the usage)\n")
+
+
+def _common(uses: Sequence[str], top: bool) -> argparse.ArgumentParser:
+    """The common options; after the command their defaults are SUPPRESS, so a value given
+    before the command is kept."""
+    common = _Parser(add_help=False)
+    suppress = {} if top else {"default": argparse.SUPPRESS}
+    if "bus" in uses:
+        common.add_argument("--bus", metavar="URL", help="smbus:1, blinka:, serial:/dev/ttyACM0, sim: (the "
+                            "shared simulated arm) or sim:virtual (default: $BIOSCARA_BUS, else the config's bus)")
+        common.add_argument("--protocol", choices=PROTOCOLS, help="joint protocol: auto (v2 where the joint "
+                            "serves it), legacy or v2 (default: auto)", **({"default": "auto"} if top else suppress))
+    if "config" in uses:
+        common.add_argument("--config", metavar="FILE", help="arm configuration (TOML; default: "
+                            "$XDG_CONFIG_HOME/bioscara/arm.toml if it exists, else the shipped J1-J4 configuration)")
+    if "json" in uses:
+        common.add_argument("--json", action="store_true", help="machine-readable output (JSON)",
+                            **({"default": False} if top else suppress))
+    common.add_argument("-v", "--verbose", action="count", help="more log output",
+                        **({"default": 0} if top else suppress))
+    return common
 
 
 def build_parser() -> argparse.ArgumentParser:
-    common = argparse.ArgumentParser(add_help=False)
-    common.add_argument("--bus", metavar="URL", help="smbus:1, blinka:, serial:/dev/ttyACM0 or sim: "
-                        "(default: the config's bus)")
-    common.add_argument("--config", metavar="FILE", help="arm configuration (TOML; default: the shipped "
-                        "J1-J4 configuration on the simulator)")
-    common.add_argument("--json", action="store_true", help="machine-readable output")
-    common.add_argument("--protocol", choices=PROTOCOLS, default="auto",
-                        help="joint protocol: auto (v2 where the joint serves it), legacy or v2 "
-                        "(default: auto)")
-    common.add_argument("-v", "--verbose", action="count", default=0, help="more log output")
-    parser = argparse.ArgumentParser(prog="bioscara", description="Bioscara SCARA arm tools")
+    parser = _Parser(prog="bioscara", description="Bioscara SCARA arm tools",
+                                     parents=[_common(("json",), top=True)])
+    parser.add_argument("--version", action="version", version=f"bioscara {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name in COMMANDS:
         module = importlib.import_module(f".commands.{name}", __package__)
-        command = sub.add_parser(module.NAME, parents=[common], help=module.HELP, description=module.HELP)
+        uses = tuple(getattr(module, "USES", ALL_OPTIONS))
+        command = sub.add_parser(module.NAME, parents=[_common(uses, top=False)], help=module.HELP,
+                                 description=module.HELP)
         module.add_arguments(command)
-        command.set_defaults(handler=module.run)
+        command.set_defaults(handler=module.run, uses=uses)
     return parser
+
+
+def _safe_streams() -> None:
+    """Text that came from undecodable bytes (arguments, file names) prints as escapes, never raises."""
+    for stream in (sys.stdout, sys.stderr):
+        reconfigure = getattr(stream, "reconfigure", None)
+        if reconfigure is not None:
+            try:
+                reconfigure(errors="backslashreplace")
+            except (ValueError, OSError):
+                pass
 
 
 def main(argv: list[str] | None = None, *, bus: Bus | None = None) -> int:
     """Run one command. `bus`: use this open bus instead of the config's (embedding, tests)."""
-    args = build_parser().parse_args(argv)
+    _safe_streams()
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # argparse has printed the usage error (or --help, --version)
+        return exc.code if isinstance(exc.code, int) else USAGE
     level = (logging.WARNING, logging.INFO, logging.DEBUG)[min(args.verbose, 2)]
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
     session = Session(args, bus)
     try:
+        if args.json and "json" not in args.uses:
+            raise InvalidArgumentError(f"`bioscara {args.command}` has no --json output")
         return int(args.handler(args, session) or 0)
     except KeyboardInterrupt:
         session.err("interrupted")
         return 130
-    except ConfigError as exc:
-        session.err(f"error: {exc.detail}")
-        return 2
+    except (ConfigError, InvalidArgumentError) as exc:
+        session.fail(exc, USAGE)
+        return USAGE
     except (BioscaraError, OSError) as exc:
-        session.err(f"error: {exc}")
-        return 1
+        session.fail(exc, DEVICE)
+        return DEVICE
+    except Exception as exc:  # a bug: still one line (the traceback with -vv)
+        logging.getLogger("bioscara").debug("internal error", exc_info=True)
+        session.err(f"internal error: {type(exc).__name__}: {exc} (please report it; -vv shows where)")
+        return INTERNAL
     finally:
         session.close()
 

@@ -259,6 +259,11 @@ class Communicator:
         self.stop()
         self.start()
 
+    def reset_stats(self) -> None:
+        """Count the timing from now (e.g. from `start`, not from cycles run by hand before it)."""
+        self.stats = TimingStats()
+        self._last_start = None
+
     def _loop(self) -> None:
         self._set_scheduling()
         try:

@@ -12,7 +12,7 @@ import difflib
 import math
 import os
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
 from typing import Any, Literal
@@ -36,7 +36,7 @@ class BusConfig:
     url: str = "sim:"  # smbus:N | blinka: | serial:/dev/tty... | sim:
     speed_hz: int = 400_000  # I2C clock, Hz
     attempts: int = 3  # transfer attempts before COMM_ERROR
-    use_mock_hardware: bool = False  # True: ignore url and use the simulated bus
+    use_mock_hardware: bool = False  # True: ignore url and simulate the joints in this process
 
 
 @dataclass(frozen=True)
@@ -108,8 +108,35 @@ class ArmConfig:
 
     @property
     def bus_url(self) -> str:
-        """The bus to open: the simulated one when use_mock_hardware is set."""
-        return "sim:" if self.bus.use_mock_hardware else self.bus.url
+        """The bus to open: joints simulated in this process (virtual time) when use_mock_hardware is set."""
+        return "sim:virtual" if self.bus.use_mock_hardware else self.bus.url
+
+
+USER_CONFIG_NAME = "arm.toml"
+BUS_ENV = "BIOSCARA_BUS"
+
+
+def user_config_path() -> Path:
+    """$XDG_CONFIG_HOME/bioscara/arm.toml: the configuration commands use when given no --config."""
+    from .paths import default_config_dir
+    return default_config_dir() / USER_CONFIG_NAME
+
+
+def resolve_config(path: str | os.PathLike[str] | None = None, bus: str | None = None) -> ArmConfig:
+    """The configuration a command runs with.
+
+    The file: `path`, else the user's (`user_config_path()`) if it exists, else the shipped one.
+    The bus: `bus` (--bus), else $BIOSCARA_BUS, else the file's.
+    """
+    if path is None and user_config_path().is_file():
+        path = user_config_path()
+    config = load_config(path)
+    url = bus or os.environ.get(BUS_ENV, "").strip() or None
+    if url is not None:
+        if not bus and not url.startswith(BUS_SCHEMES):
+            raise ConfigError(f"unknown bus {url!r} in ${BUS_ENV}; use one of {', '.join(BUS_SCHEMES)}")
+        config = replace(config, bus=replace(config.bus, url=url, use_mock_hardware=False))
+    return config
 
 
 def load_config(path: str | os.PathLike[str] | None = None) -> ArmConfig:
@@ -130,6 +157,10 @@ def load_config(path: str | os.PathLike[str] | None = None) -> ArmConfig:
         raise ConfigError(f"{source}: not valid TOML (not UTF-8 text: {e.reason} at byte {e.start})") from e
     except tomllib.TOMLDecodeError as e:
         raise ConfigError(f"{source}: not valid TOML ({e})") from e
+    except ValueError as e:  # an integer literal longer than Python converts (4300 digits)
+        raise ConfigError(f"{source}: not valid TOML ({str(e)[:80]})") from e
+    except RecursionError:
+        raise ConfigError(f"{source}: not valid TOML (arrays or tables nested too deeply)") from None
     return parse_config(data, source)
 
 
@@ -375,9 +406,10 @@ def _section(p: _Problems, table: dict[str, Any], path: str, allowed: set[str], 
     """Report the keys of `table` that are not allowed; return the table itself."""
     for key in table:
         if key not in allowed:
-            near = difflib.get_close_matches(key, sorted(allowed), n=1)
+            near = difflib.get_close_matches(key, sorted(allowed), n=1) if len(key) < 100 else []
             hint = f"did you mean {near[0]}?" if near else "allowed: " + (", ".join(sorted(allowed)) or "none")
-            p.add(f"unknown {what} {path + '.' if path else ''}{key} ({hint})")
+            shown = key if len(key) <= 60 else key[:57] + "..."
+            p.add(f"unknown {what} {path + '.' if path else ''}{shown} ({hint})")
     return table
 
 
@@ -403,6 +435,9 @@ def _check(p: _Problems, path: str, value: object, spec: _Key) -> Any:
         p.add(f"{path} = {shown} must be {spec.allowed()}, not a boolean")
         return None
     if spec.kind is float and type(value) is int:
+        if abs(value) > 1e300:
+            p.add(f"{path} = {shown} is too large a number")
+            return None
         value = float(value)
     if type(value) is not spec.kind:  # also refuses 20.5 (or 20.0) where an integer is expected
         p.add(f"{path} = {shown} must be {spec.allowed()}")
@@ -414,7 +449,7 @@ def _check(p: _Problems, path: str, value: object, spec: _Key) -> Any:
         return value
     if not isinstance(value, (int, float)):
         return value
-    if not math.isfinite(value):
+    if isinstance(value, float) and not math.isfinite(value):
         p.add(f"{path} = {shown} must be a finite number")
     elif spec.lo is not None and spec.hi is not None and not spec.lo <= value <= spec.hi:
         p.add(f"{path} = {shown} is out of range {spec.range()}")
@@ -428,7 +463,12 @@ def _check(p: _Problems, path: str, value: object, spec: _Key) -> Any:
 
 
 def _show(value: object, as_hex: bool = False) -> str:
-    """A value as it would be written in TOML."""
+    """A value as it would be written in TOML, shortened to a readable length."""
+    text = _toml(value, as_hex)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _toml(value: object, as_hex: bool) -> str:
     if isinstance(value, bool):
         return "true" if value else "false"
     if isinstance(value, int):

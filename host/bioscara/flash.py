@@ -20,6 +20,7 @@ import subprocess
 from dataclasses import asdict, dataclass
 from functools import cache, partial
 from importlib import resources
+from pathlib import Path
 from importlib.resources.abc import Traversable
 from typing import Any, Callable
 
@@ -87,9 +88,33 @@ def joint_config(joint: str) -> tuple[bytes, firmware_config.JointConfig]:
     return text, cfg
 
 
-def build_image(joint: str, board: BoardInfo) -> Image:
-    """Everything `joint` needs on `board`, precompiled if mpy-cross can target the board."""
-    config_text, cfg = joint_config(joint)
+def user_joint_config(path: str) -> tuple[bytes, firmware_config.JointConfig]:
+    """A joint configuration the user wrote (your pins, driver address, sense resistor...),
+    validated as the firmware will validate it at boot; ConfigError lists every problem."""
+    try:
+        text = Path(path).read_bytes()
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read the file ({exc.strerror or exc})") from None
+    try:
+        data = json.loads(text.decode("utf-8"))
+    except UnicodeDecodeError:
+        raise ConfigError(f"{path}: not UTF-8 text") from None
+    except ValueError as exc:
+        raise ConfigError(f"{path}: not valid JSON ({exc})") from None
+    except RecursionError:
+        raise ConfigError(f"{path}: not valid JSON (nested too deeply)") from None
+    cfg = firmware_config.parse(data, path)
+    if not cfg.valid:
+        raise ConfigError("\n".join(cfg.errors))
+    if cfg.motor.get("backend") != "pico":
+        raise ConfigError(f"{path}: motor.backend must be \"pico\" on a board (the \"sim\" backend is the simulator's)")
+    return text, cfg
+
+
+def build_image(joint: str, board: BoardInfo, config: tuple[bytes, firmware_config.JointConfig] | None = None) -> Image:
+    """Everything `joint` needs on `board`, precompiled if mpy-cross can target the board;
+    `config`: a user's joint configuration (`user_joint_config`) instead of the shipped one."""
+    config_text, cfg = config if config is not None else joint_config(joint)
     compiler, build = _compiler(board)
     files: dict[str, bytes] = {}
     for name, source in firmware_sources().items():
@@ -187,11 +212,11 @@ class Plan:
         return sum(len(self.image.files[p]) for p in paths)
 
 
-def plan(board: Board, joint: str) -> Plan:
+def plan(board: Board, joint: str, config: tuple[bytes, firmware_config.JointConfig] | None = None) -> Plan:
     """Probe the board, refuse it if unfit, build the image and diff it against the board's files."""
     info = board.info()
     check_board(info, board.port)
-    image = build_image(joint, info)
+    image = build_image(joint, info, config)
     on_board = board.hashes(MANAGED)
     added = tuple(p for p in image.files if p not in on_board)
     updated = tuple(p for p in image.files if p in on_board and on_board[p] != image.sha256(p))

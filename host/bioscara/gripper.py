@@ -20,7 +20,6 @@ import logging
 import math
 import os
 import struct
-import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -165,7 +164,13 @@ class BaseGripper:
         directory = self.state_file.parent
         try:
             directory.mkdir(parents=True, exist_ok=True)
-            fd, tmp = tempfile.mkstemp(dir=directory, prefix=f".{self.state_file.name}.", suffix=".tmp")
+            _remove_stale_temporaries(self.state_file)
+            # Named after this process, so a writer that was killed half way is recognised (and its
+            # file removed) by the next save, whichever process makes it.
+            tmp = directory / f".{self.state_file.name}.{os.getpid()}.tmp"
+            with contextlib.suppress(FileNotFoundError):
+                tmp.unlink()  # ours from an earlier, interrupted save (or a dead process with our pid)
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
             try:
                 with os.fdopen(fd, "wb") as f:
                     f.write(struct.pack(_STATE_FORMAT, width))
@@ -273,3 +278,23 @@ def _fsync_dir(directory: Path) -> None:
         os.fsync(fd)
     finally:
         os.close(fd)
+
+
+def _remove_stale_temporaries(state_file: Path) -> None:
+    """Delete the temporary files of saves whose process is gone (killed between write and rename)."""
+    for tmp in state_file.parent.glob(f".{state_file.name}.*.tmp"):
+        pid = tmp.name[len(state_file.name) + 2:-len(".tmp")]
+        if pid.isdigit() and int(pid) != os.getpid() and _alive(int(pid)):
+            continue
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # it exists, owned by someone else
+        return True
+    return True

@@ -489,11 +489,20 @@ class Joint:
         self._require_open()
         if self.v2 is not None:
             return self._read_v2(reg)
-        reply = self.bus.transfer(self.address, bytes([reg.addr]), reg.rsize + 1)
+        reply = self._transfer(bytes([reg.addr]), reg.rsize + 1)
         self._take_flags(reply[-1])
         if reply[-1] & P.FLAG_ERROR:
             raise BioscaraError(f"the joint rejected the read of {reg.name}", joint=self.name)
         return reg.decode(reply[:-1])
+
+    def _transfer(self, write: bytes, read_len: int) -> bytes:
+        """One bus transaction; a bus error names this joint as well as its address."""
+        try:
+            return self.bus.transfer(self.address, write, read_len)
+        except CommError as exc:
+            if exc.joint:
+                raise
+            raise CommError(exc.detail, joint=self.name) from None
 
     def _command(self, addr: int, *values: float | int) -> int:
         """Write a register, returning the reply flags (which already show the command's effect)."""
@@ -508,7 +517,7 @@ class Joint:
     def _send(self, reg: P.Register, payload: bytes) -> int:
         if self.v2 is not None:
             return self._command_v2(reg, payload)
-        reply = self.bus.transfer(self.address, bytes([reg.addr]) + payload, 1)
+        reply = self._transfer(bytes([reg.addr]) + payload, 1)
         self._take_flags(reply[0])
         if reply[0] & P.FLAG_ERROR:
             raise self._rejected(reg)

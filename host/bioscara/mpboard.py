@@ -8,9 +8,13 @@ from __future__ import annotations
 
 import ast
 import contextlib
+import errno
 import io
+import os
 from dataclasses import dataclass
 from typing import Callable, Iterable, Protocol
+
+from .serial_port import open_problem
 
 # Index: sys.implementation._mpy >> 10 (MicroPython docs, "MicroPython .mpy files").
 ARCHS = (None, "x86", "x64", "armv6", "armv6m", "armv7m", "armv7em", "armv7emsp", "armv7emdp",
@@ -68,6 +72,8 @@ class Board(Protocol):
 
     def write(self, path: str, data: bytes, progress: Callable[[int], None] | None = None) -> None:
         """Create or replace a file, making its directories; `progress(bytes written so far)`."""
+
+    def read(self, path: str) -> bytes | None: ...
 
     def remove(self, path: str) -> None: ...
 
@@ -186,6 +192,8 @@ class MpremoteBoard:
         except ImportError:
             raise FlashError("mpremote is not installed (pip install mpremote)") from None
         self.port = port
+        if not os.path.exists(port) and not port.upper().startswith("COM"):
+            raise FlashError(open_problem(port, FileNotFoundError(errno.ENOENT, port)))
         self._root = root.rstrip("/") + "/"
         self._errors: tuple[type[Exception], ...] = (TransportError,)
         try:
@@ -238,6 +246,15 @@ class MpremoteBoard:
                                          progress_callback=(lambda done, _total: progress(done)) if progress else None)
         except (OSError, *self._errors) as exc:
             raise FlashError(f"writing {path} on {self.port} failed: {_last_line(exc)}") from None
+
+    def read(self, path: str) -> bytes | None:
+        """The file's bytes, or None if the board has no such file."""
+        try:
+            if not self._transport.fs_exists(self._path(path)):
+                return None
+            return bytes(self._transport.fs_readfile(self._path(path)))
+        except (OSError, *self._errors) as exc:
+            raise FlashError(f"reading {path} on {self.port} failed: {_last_line(exc)}") from None
 
     def remove(self, path: str) -> None:
         try:

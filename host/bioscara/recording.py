@@ -28,15 +28,20 @@ def _kind(path: Path) -> str:
 
 
 class TraceWriter:
-    def __init__(self, path: str | Path, joints: list[str], rate_hz: float, bus: str) -> None:
+    def __init__(self, path: str | Path, joints: list[str], rate_hz: float, bus: str,
+                 units: dict[str, str] | None = None) -> None:
+        """`units`: each joint's position unit (rad or m), kept in the metadata for `plot`."""
         self.path = Path(path)
         self.kind = _kind(self.path)
         self.columns = ["time", "cycle"] + [f"{j}/{v}" for j in joints for v in ("position", "velocity",
                                                                                  "flags", "home")] + ["fault"]
         self.meta = {"bioscara": __version__, "spec_hash": f"{P.SPEC_HASH:08x}", "protocol": P.PROTOCOL_VERSION,
-                     "rate_hz": rate_hz, "bus": bus, "joints": joints,
+                     "rate_hz": rate_hz, "bus": bus, "joints": joints, "units": units or {},
                      "started": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")}
-        self._file: IO[str] = open(self.path, "w", newline="")
+        try:
+            self._file: IO[str] = open(self.path, "w", newline="")
+        except OSError as exc:
+            raise InvalidArgumentError(f"cannot write the recording {self.path}: {exc.strerror or exc}") from None
         self.rows = 0
         if self.kind == "csv":
             self._file.write("# " + json.dumps(self.meta) + "\n")

@@ -6,13 +6,13 @@ import argparse
 import json
 import sys
 from dataclasses import replace
-from typing import Any, Callable
+from typing import Any
 
 from rich.console import Console
 
 from .arm import Arm, make_joint
 from .bus import Bus
-from .config import ArmConfig, load_config
+from .config import ArmConfig, resolve_config
 from .errors import BioscaraError, InvalidArgumentError
 from .hardware import open_arm, open_arm_bus
 from .joint import Joint
@@ -25,6 +25,8 @@ class Session:
         self.args = args
         self.json = bool(getattr(args, "json", False))
         self.console = Console(stderr=self.json)
+        if not self.console.is_terminal:  # piped: whole lines, not wrapped at 80 columns
+            self.console = Console(stderr=self.json, width=200)
         self._config: ArmConfig | None = None
         self._bus = bus
         self._owns_bus = bus is None
@@ -33,11 +35,7 @@ class Session:
     @property
     def config(self) -> ArmConfig:
         if self._config is None:
-            config = load_config(getattr(self.args, "config", None))
-            url = getattr(self.args, "bus", None)
-            if url:
-                config = replace(config, bus=replace(config.bus, url=url, use_mock_hardware=False))
-            self._config = config
+            self._config = resolve_config(getattr(self.args, "config", None), getattr(self.args, "bus", None))
         return self._config
 
     @property
@@ -58,23 +56,13 @@ class Session:
         return str(getattr(self.args, "protocol", None) or "auto")
 
     def joint(self, name: str) -> Joint:
-        """An initialized joint by name (j1..j4)."""
+        """An initialized joint by name (j1..j4, or J1..J4)."""
+        name = name.lower()
         if name not in self.config.joints:
             raise InvalidArgumentError(f"no joint {name!r}; the configuration has {', '.join(self.config.joints)}")
         joint = make_joint(self.config.joints[name], self.bus)
         joint.init()
         return joint
-
-    def each_joint(self, names: list[str], action: Callable[[Joint], object], done: str) -> dict[str, str]:
-        """`action` on every named joint, going on past one that fails: name -> `done` or "FAILED: why"."""
-        results = {}
-        for name in names:
-            try:
-                action(self.joint(name))
-                results[name] = done
-            except BioscaraError as exc:
-                results[name] = f"FAILED: {exc}"
-        return results
 
     def emit(self, data: Any, human: Any = None) -> None:
         """Print `data` as JSON with --json, else `human` (a rich renderable or text) or `data`."""
@@ -86,8 +74,17 @@ class Session:
     def err(self, message: str) -> None:
         Console(stderr=True, soft_wrap=True).print(message, style="red", markup=False, highlight=False)
 
+    def fail(self, exc: BioscaraError | OSError, status: int) -> None:
+        """Report the error that ends the command: one line on stderr, `error: [JOINT: ]what`."""
+        if isinstance(exc, BioscaraError):
+            message = f"{exc.joint}: {exc.detail}" if exc.joint else exc.detail
+        else:
+            message = str(exc)
+        self.err(f"error: {message}")
+
     def arm_of(self, names: list[str]) -> Arm:
         """An arm made of some of the configured joints (commands act on those only)."""
+        names = [name.lower() for name in names]
         unknown = [name for name in names if name not in self.config.joints]
         if unknown:
             raise InvalidArgumentError(f"no joint {', '.join(unknown)}; the configuration has {', '.join(self.config.joints)}")

@@ -21,13 +21,13 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from enum import Enum
 from pathlib import Path
-from typing import Protocol
+from typing import Any, Protocol
 
-from .arm import Arm, Mode, make_joint
+from .arm import Arm, Lifecycle, Mode, make_joint
 from .bus.base import Bus
 from .communicator import Communicator
 from .config import ArmConfig
-from .errors import BioscaraError
+from .errors import (BioscaraError, CommError, InvalidArgumentError, NotEnabledError, StalledError)
 from .firmware import protocol as P
 from .joint import Joint
 
@@ -50,6 +50,44 @@ class ShellContext(Protocol):
 
     @property
     def arm(self) -> Arm: ...
+
+
+NOT_UTF8 = "\ufffe not UTF-8"  # stands for a script line that could not be decoded
+
+
+def script_lines(source: Path | Any) -> list[str]:
+    """The lines of a script file (or a binary stream); an undecodable line becomes NOT_UTF8, which
+    fails where it stands. InvalidArgumentError if the file cannot be read."""
+    if isinstance(source, Path):
+        try:
+            raw = source.read_bytes()
+        except OSError as exc:
+            raise InvalidArgumentError(f"cannot read {source}: {exc.strerror or exc}") from None
+        chunks = raw.splitlines()
+    else:
+        chunks = list(source)
+    lines = []
+    for chunk in chunks:
+        try:
+            lines.append(chunk.decode("utf-8").rstrip("\r\n"))
+        except UnicodeDecodeError:
+            lines.append(NOT_UTF8)
+    return lines
+
+
+def fault_cause(exc: BioscaraError) -> str:
+    """An arm fault with its cause named: deadman, stall, limit or lost link."""
+    where = f"{exc.joint}: " if exc.joint else ""
+    if isinstance(exc, StalledError):
+        return f"{where}stall: stall detection stopped the joint (a collision, or more load than its current)"
+    if isinstance(exc, NotEnabledError):
+        return (f"{where}deadman: the joint stopped and disabled itself after 50 ms without traffic "
+                "(keep the communicator running while a joint moves)")
+    if isinstance(exc, CommError):
+        return f"{where}lost link: {exc.detail}"
+    if isinstance(exc, InvalidArgumentError) and "outside" in exc.detail:
+        return f"{where}limit: {exc.detail}"
+    return f"{where}{exc.detail}"
 
 
 class ShellError(Exception):
@@ -105,12 +143,16 @@ class Shell:
     """
 
     def __init__(self, context: ShellContext, out: Output, err: Output | None = None, *,
-                 expert: bool = False, frequency: float = 100.0, priority: int | None = 50) -> None:
+                 expert: bool = False, frequency: float = 100.0, priority: int | None = 50,
+                 keep_alive: bool = False) -> None:
         self.context = context
         self.out = out
         self.err = err or out
         self.expert = expert
         self.priority = priority
+        # On a bus in real time the joints' deadman (50 ms) would disable an active joint between
+        # two typed lines: the communicator thread then runs whenever the arm is active.
+        self.keep_alive = keep_alive
         self.communicator = Communicator(context.arm, frequency, realtime_priority=priority)
         self.done = False
         self._probes: dict[str, Joint] = {}
@@ -135,6 +177,9 @@ class Shell:
     def execute(self, line: str, where: str = "") -> bool:
         """Run one console line; False if it failed (the reason is printed, prefixed by `where`)."""
         prefix = f"{where}: " if where else ""
+        if line == NOT_UTF8:
+            self.err(f"{prefix}error: not UTF-8 text; nothing was run")
+            return False
         try:
             words = shlex.split(line, comments=True)
         except ValueError as exc:
@@ -161,7 +206,7 @@ class Shell:
         ok = True
         for number, line in enumerate(lines, 1):
             line = line.rstrip("\n")
-            if echo and line.strip() and not line.lstrip().startswith("#"):
+            if echo and line.strip() and not line.lstrip().startswith("#") and line != NOT_UTF8:
                 self.out(f"> {line.strip()}")
             if not self.execute(line, f"{source}:{number}"):
                 ok = False
@@ -177,7 +222,8 @@ class Shell:
         if fault is None or fault is self._reported_fault:
             return True
         self._reported_fault = fault
-        self.err(f"{prefix}error: arm fault, joints disabled (arm {self.arm.lifecycle.value}): {fault}")
+        self.err(f"{prefix}error: arm fault, joints disabled (arm {self.arm.lifecycle.value}): "
+                 f"{fault_cause(fault)}")
         return False
 
     @staticmethod
@@ -239,6 +285,7 @@ class Shell:
             return
         if hz is not None and hz != comm.frequency:
             self.communicator = Communicator(self.arm, hz, realtime_priority=self.priority)
+        self.communicator.reset_stats()  # `stats` counts from here
         self.communicator.start()
         self.out(f"communicator started at {self.communicator.frequency:g} Hz on {self.context.bus.describe()}")
 
@@ -250,11 +297,16 @@ class Shell:
             return
         self.communicator.stop()
         self.out(f"communicator stopped after {self.communicator.stats.cycles} cycles")
+        if self.arm.lifecycle is Lifecycle.ACTIVE:
+            self.err("warning: the arm is active: a joint that is moving stops and disables itself once its "
+                     "deadman (50 ms without traffic) fires; `start` or `wait` keep the joints fed")
 
-    @command("", "stop and start the communicator thread (keeps rate and statistics)")
+    @command("", "stop and start the communicator thread (keeps the rate, resets the statistics)")
     def _do_restart(self, args: list[str]) -> None:
         _arity(args, 0, 0, "restart")
-        self.communicator.restart()
+        self.communicator.stop()
+        self.communicator.reset_stats()
+        self.communicator.start()
         self.out(f"communicator restarted at {self.communicator.frequency:g} Hz")
 
     @command("", "communicator timing (rate, jitter, overruns, cycle duration, scheduling) and link health",
@@ -312,6 +364,11 @@ class Shell:
         _arity(args, 0, 0, "activate")
         self.arm.activate()
         self.out(f"arm {self.arm.lifecycle.value}")
+        if self.keep_alive and not self.communicator.running:
+            self.communicator.reset_stats()
+            self.communicator.start()
+            self.out(f"communicator started at {self.communicator.frequency:g} Hz: it keeps the active joints "
+                     "fed (their deadman disables them after 50 ms without traffic)")
 
     @command("", "disable every joint, freewheeling (arm active -> inactive)")
     def _do_deactivate(self, args: list[str]) -> None:
@@ -477,7 +534,12 @@ class Shell:
         path = Path(files[0])
         if path.resolve() in self._scripts:
             raise ShellError(f"{path} is already running (a script cannot run itself)")
-        lines = path.read_text().splitlines()
+        if path.is_dir():
+            raise ShellError(f"{path} is a directory, not a script")
+        try:
+            lines = script_lines(path)
+        except InvalidArgumentError as exc:
+            raise ShellError(exc.detail) from None
         self._scripts.append(path.resolve())
         try:
             ok = self.run_lines(lines, str(path), keep_going=keep_going)

@@ -34,6 +34,7 @@ log = logging.getLogger("bioscara.sim_server")
 
 _TURN_S = 0.001  # longest wait for input: one simulated main-loop tick
 _MAX_CATCH_UP_US = 20_000  # per turn; below the joints' 50 ms deadman
+_SLICE_US = 2_000  # simulated time between looks at the terminals and clients
 
 
 class Pty:
@@ -136,6 +137,7 @@ class SimServer:
             self.bus.add(joint)
             self._consoles.append(DebugConsole(joint.core, pty.readinto, pty.write_line))
             self.joint_paths[spec.firmware_joint] = pty.path
+        self._frontends: list[Any] = []
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self.error: BaseException | None = None
@@ -150,9 +152,17 @@ class SimServer:
         self._ptys.append(pty)
         return pty
 
+    def add_frontend(self, frontend: Any) -> None:
+        """Serve `frontend` in the loop too: its `fds()` are waited on, its `poll()` runs every turn."""
+        self._frontends.append(frontend)
+
+    def request_stop(self) -> None:
+        """End `serve_forever` after the current turn (from the loop's own thread, or any other)."""
+        self._stop.set()
+
     def serve_forever(self) -> None:
         """Follow the wall clock and serve the terminals until `stop()` (or KeyboardInterrupt)."""
-        fds = [pty.fileno() for pty in self._ptys]
+        pty_fds = [pty.fileno() for pty in self._ptys]
         wall_start = time.monotonic()
         sim_start = self.clock.now_us
         while not self._stop.is_set():
@@ -163,11 +173,18 @@ class SimServer:
                 # as silence on the bus, which the joints' deadman would take for a lost host.
                 sim_start -= behind - _MAX_CATCH_UP_US
                 target = self.clock.now_us + _MAX_CATCH_UP_US
-            self.bus.run_until(target)
-            select.select(fds, [], [], _TURN_S)
-            self.bridge.poll()
-            for console in self._consoles:
-                console.poll()
+            while self.clock.now_us < target:  # in slices, serving requests in between: answers stay prompt
+                self.bus.run_until(min(target, self.clock.now_us + _SLICE_US))
+                self._serve()
+            select.select(pty_fds + [fd for f in self._frontends for fd in f.fds()], [], [], _TURN_S)
+            self._serve()
+
+    def _serve(self) -> None:
+        for frontend in self._frontends:
+            frontend.poll()
+        self.bridge.poll()
+        for console in self._consoles:
+            console.poll()
 
     def start(self) -> None:
         """Serve in a background thread."""

@@ -4,7 +4,9 @@
     blinka:              Adafruit Blinka busio.I2C (any Blinka board or USB I2C adapter)
     serial:/dev/ttyACM0  a USB MicroPython board running the HIL bridge (or the simulator's pty);
                          options ?baud=115200&timeout=0.1 (s per attempt)
-    sim:                 simulated joints running the real firmware, virtual time
+    sim:                 the shared simulated arm (a background service, real time; see sim_service)
+    sim:virtual          simulated joints in this process, in virtual time (tests, the demo)
+    sim:realtime         simulated joints in this process, following the wall clock
 """
 
 from __future__ import annotations
@@ -33,11 +35,19 @@ def _serial(target: str, **kwargs: Any) -> Bus:
 
 
 def _sim(target: str, **kwargs: Any) -> Bus:
-    from .sim import SimBus
     joints = kwargs.pop("sim_joints", None)
     if joints is None:
         raise ConfigError("sim: needs the arm configuration to know which joints to simulate")
-    return SimBus(joints, realtime=kwargs.pop("realtime", target == "realtime"), **kwargs)
+    realtime = kwargs.pop("realtime", False)
+    if target == "":
+        from ..paths import default_state_dir
+        from ..sim_service import ServiceBus
+        kwargs.pop("port", None)
+        return ServiceBus(joints, kwargs.pop("state_dir", None) or default_state_dir(), **kwargs)
+    if target not in ("virtual", "realtime"):
+        raise ConfigError(f"unknown simulator sim:{target}; use sim: (the shared arm), sim:virtual or sim:realtime")
+    from .sim import SimBus
+    return SimBus(joints, realtime=realtime or target == "realtime", **kwargs)
 
 
 TRANSPORTS: dict[str, Callable[..., Bus]] = {"smbus": _smbus, "blinka": _blinka, "serial": _serial,

@@ -82,7 +82,7 @@ class Bus(ABC):
                 link.failed_attempts += 1
         link.comm_errors += 1
         link.last_error = problem
-        raise CommError(f"I2C 0x{addr:02x} on {self.describe()}: {problem} "
+        raise CommError(f"I2C 0x{addr:02x} ({self.describe()}): {problem} "
                         f"(after {self.attempts} attempt{'s' if self.attempts > 1 else ''})")
 
     def write(self, addr: int, data: bytes) -> None:

@@ -25,9 +25,14 @@ from ..hil_bridge import framing as F
 from ..serial_port import DEFAULT_BAUD, PORT_ERRORS, open_port
 from .base import Bus
 
-DEFAULT_TIMEOUT_S = 0.25  # per attempt; a transaction can take two bridge I2C timeouts (2 x 50 ms)
+# Per attempt. A healthy bridge answers within a few ms; what matters is that a lost request or
+# answer is retried well inside the joints' 50 ms deadman, which every joint of the arm would
+# otherwise fire while the host waits. A bridge-side I2C timeout (50 ms) still reaches the host:
+# its answer carries the transfer's SEQ, so the retry that is waiting for it accepts it.
+DEFAULT_TIMEOUT_S = 0.02
+HANDSHAKE_TIMEOUT_S = 0.25  # a board that was just opened may still be busy
 SCAN_TIMEOUT_S = 2.0  # a healthy scan of 112 addresses; a stuck bus answers TIMEOUT sooner
-_READ_SLICE = 4  # reads wait at most timeout/_READ_SLICE, so the deadline is kept within 25 %
+QUIET_S = 0.005  # a frame that pauses this long is truncated; also the longest single read
 
 # Bridge status -> errno of the OSError the base class retries and reports (Linux adapters' codes).
 _STATUS_ERRNO = {F.NACK: errno.EREMOTEIO, F.TIMEOUT: errno.ETIMEDOUT, F.BUS_ERROR: errno.EIO,
@@ -48,6 +53,7 @@ class SerialLinkStats:
 
     requests: int = 0
     timeouts: int = 0  # attempts with no matching answer in time
+    damaged: int = 0  # attempts given up at once because the answer was damaged
     stale: int = 0  # answers to an earlier transfer, dropped by sequence number
     crc_errors: int = 0
     bad_lengths: int = 0
@@ -83,7 +89,7 @@ class SerialBus(Bus):
         # twice). A random start keeps a new process from matching the previous one's last request.
         self._seq = os.urandom(1)[0]
         self._fresh_seq = True
-        self._serial: serial.Serial | None = open_port(port, baud=baud, timeout=timeout / _READ_SLICE)
+        self._serial: serial.Serial | None = open_port(port, baud=baud, timeout=min(timeout, QUIET_S))
         try:
             self.version = self._handshake()
         except BaseException:
@@ -111,7 +117,7 @@ class SerialBus(Bus):
 
     def _handshake(self) -> BridgeVersion:
         try:
-            _, data = self._ask(F.VERSION, b"", (F.OK,))
+            _, data = self._ask(F.VERSION, b"", (F.OK,), max(self.timeout, HANDSHAKE_TIMEOUT_S))
         except CommError as exc:
             raise CommError(f"no HIL bridge answers on {self.port} ({exc.detail}); is the bridge "
                             "firmware running, and is this not a joint's debug port?") from None
@@ -142,7 +148,7 @@ class SerialBus(Bus):
         """Link statistics, including the frame parser's counts."""
         p = self._parser
         s = self._stats
-        return SerialLinkStats(s.requests, s.timeouts, s.stale, p.crc_errors, p.bad_lengths,
+        return SerialLinkStats(s.requests, s.timeouts, s.damaged, s.stale, p.crc_errors, p.bad_lengths,
                                p.truncated, p.skipped, s.bad_frames, s.reconnects)
 
     def describe(self) -> str:
@@ -219,6 +225,7 @@ class SerialBus(Bus):
             raise self._lost(exc) from None
         self._stats.requests += 1
         deadline = time.monotonic() + timeout
+        broken, skipped = self._broken_frames(), parser.skipped
         while True:
             try:
                 chunk = port.read(port.in_waiting or 1)
@@ -229,9 +236,18 @@ class SerialBus(Bus):
             answer = self._answer_in(chunk, kind | F.RESPONSE)
             if answer is not None:
                 return answer
+            if self._broken_frames() != broken or (not chunk and not parser.partial and parser.skipped != skipped):
+                # The answer came and was damaged (or its start byte was): nothing else will come,
+                # so the retry goes out now rather than after the timeout.
+                self._stats.damaged += 1
+                raise OSError(errno.EBADMSG, "the bridge's answer was damaged on the serial link")
             if time.monotonic() >= deadline:
                 self._stats.timeouts += 1
                 raise TimeoutError(f"no answer from the bridge within {timeout * 1000:.0f} ms")
+
+    def _broken_frames(self) -> int:
+        p = self._parser
+        return p.crc_errors + p.bad_lengths + p.truncated
 
     def _answer_in(self, chunk: bytes, kind: int) -> tuple[int, bytes] | None:
         """Feed `chunk` to the parser; (status, data) of the answer to the current request, if any."""
@@ -252,7 +268,7 @@ class SerialBus(Bus):
     def _connected(self) -> serial.Serial:
         if self._serial is None:
             try:
-                self._serial = open_port(self.port, baud=self.baud, timeout=self.timeout / _READ_SLICE)
+                self._serial = open_port(self.port, baud=self.baud, timeout=min(self.timeout, QUIET_S))
             except CommError as exc:  # an attempt that failed: the base class retries and counts it
                 raise OSError(errno.ENODEV, exc.detail) from None
             self._stats.reconnects += 1

@@ -72,7 +72,7 @@ class SimBus(Bus):
         self._virtual_start = self.clock.now_us
 
     def describe(self) -> str:
-        return "sim:" + ("realtime" if self.realtime else "")
+        return "sim:" + ("realtime" if self.realtime else "virtual")
 
     def joint(self, address: int) -> SimJoint:
         """The simulated joint at `address` (to inject collisions, reboot it, look at its rotor)."""

@@ -20,12 +20,14 @@ from typing import Any
 from ..console import PLOT_COLUMNS, JointConsole, plot
 from ..errors import BioscaraError, InvalidArgumentError
 from ..firmware.debug import TRACE_COLUMNS
-from ..paths import default_state_dir
+from ..paths import default_state_dir, private_file
 from ..serial_port import DEFAULT_BAUD
 from ..session import Session
+from .options import count, non_negative
 
 NAME = "console"
 HELP = "a joint's serial debug console: log lines, status, trace capture to CSV, live trace plot"
+USES = ()  # a serial port, not the bus; interactive text, not JSON
 
 JOINT_COMMANDS = ("status", "regs", "trace on", "trace off", "log ERROR", "log WARN", "log INFO",
                   "log DEBUG", "help")
@@ -42,11 +44,11 @@ Outcome = str | tuple[str, ...]
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("port", help="serial port of the joint (/dev/ttyACM0) or a path from `bioscara sim`")
-    parser.add_argument("--baud", type=int, default=DEFAULT_BAUD, help="only matters on a real UART")
+    parser.add_argument("--baud", type=count(50, 10_000_000), default=DEFAULT_BAUD, help="only matters on a real UART")
     parser.add_argument("-c", "--command", action="append", default=[], metavar="LINE",
                         help="send LINE (repeatable; ':' lines are console commands), print the output for "
                         "--duration seconds, exit")
-    parser.add_argument("--duration", type=float, default=1.0, metavar="S",
+    parser.add_argument("--duration", type=non_negative("s"), default=1.0, metavar="S",
                         help="non-interactive: how long to keep printing after the last command (default 1)")
     parser.add_argument("--capture", metavar="FILE.csv", help="capture the trace to a CSV file")
     parser.add_argument("--plot", nargs="*", metavar="COLUMN",
@@ -83,13 +85,18 @@ def run(args: argparse.Namespace, session: Session) -> int:
 
 
 class Printer:
-    """Prints whole lines from any thread, flushed (the output may be a pipe)."""
+    """Prints whole lines from any thread, flushed (the output may be a pipe); counts the joint's
+    errors: its console's `error: ...` answers and its ERROR log lines."""
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
+        self.joint_errors = 0
 
     def __call__(self, line: str) -> None:
+        words = line.split(maxsplit=2)
         with self._lock:
+            if line.startswith("error:") or len(words) > 1 and words[1] == "ERROR":
+                self.joint_errors += 1
             print(line, flush=True)
 
 
@@ -106,6 +113,8 @@ def batch(console: JointConsole, lines: list[str], duration: float, out: Printer
         elif isinstance(outcome, tuple):
             columns = outcome
     time.sleep(duration)  # the joint answers and logs meanwhile (the reader thread prints)
+    if out.joint_errors:
+        status = 1
     if columns is not None:
         from rich.console import Console
         Console(soft_wrap=True).print(plot(console.samples(PLOT_WINDOW_S), columns))
@@ -161,8 +170,7 @@ def interactive(console: JointConsole, history: Path, out: Printer, columns: tup
 
     store: History
     try:
-        history.parent.mkdir(parents=True, exist_ok=True)
-        store = FileHistory(str(history))
+        store = FileHistory(str(private_file(history)))
     except OSError:
         store = InMemoryHistory()
     words = JOINT_COMMANDS + tuple(text.split()[0] for text in LOCAL_HELP) + (":capture off",)

@@ -8,6 +8,7 @@ from ..session import Session
 
 NAME = "demo"
 HELP = "simulated pick and place: configure, activate, home, pick, place (no hardware needed)"
+USES = ("config", "json")  # always the simulator in this process, whatever the bus
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

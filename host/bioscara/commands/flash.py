@@ -3,43 +3,95 @@
 from __future__ import annotations
 
 import argparse
+import json
 
 from rich.progress import BarColumn, DownloadColumn, Progress, TextColumn
 from rich.text import Text
 
 from .. import flash, mpboard
+from ..errors import InvalidArgumentError
 from ..session import Session
+from .options import shown
 
 NAME = "flash"
 HELP = ("deploy the joint firmware onto a MicroPython board (mpremote): precompile, copy what changed, "
         "verify, reboot, and with --bus check the joint's version over the bus")
+USES = ("bus", "json")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("port", help="the board's serial port, e.g. /dev/ttyACM0 or COM3")
-    parser.add_argument("--joint", required=True, type=str.upper, choices=flash.JOINTS,
-                        help="which joint the board drives: its configuration goes to /joint_config.json")
+    parser.add_argument("--joint", type=_joint, metavar="JOINT",
+                        help="j1..j4: which joint the board drives; the shipped configuration of that joint "
+                        "goes to /joint_config.json (not needed with --joint-config)")
+    parser.add_argument("--joint-config", metavar="FILE.json",
+                        help="deploy this joint configuration instead (your pins, driver address, sense "
+                        "resistor...): validated as the firmware will, before the board is touched")
+    parser.add_argument("--show-config", action="store_true",
+                        help="only show the board's current /joint_config.json (and whether it is valid)")
     parser.add_argument("--dry-run", action="store_true", help="show what would change; change nothing")
     parser.add_argument("--boot-timeout", type=float, default=10.0, metavar="S",
                         help="with --bus: how long the joint may take to answer after the reboot (s; default 10)")
 
 
+def _joint(text: str) -> str:
+    name = text.strip().upper()
+    if name not in flash.JOINTS:
+        raise argparse.ArgumentTypeError(f"no joint {shown(text)}; the joints are j1, j2, j3, j4")
+    return name
+
+
 def run(args: argparse.Namespace, session: Session) -> int:
+    if args.show_config:
+        return _show_config(args, session)
+    config = flash.user_joint_config(args.joint_config) if args.joint_config else None
+    joint = config[1].joint if config is not None else args.joint
+    if joint is None:
+        raise InvalidArgumentError("which joint? give --joint j1..j4, or --joint-config FILE.json")
+    if args.joint and config is not None and args.joint != joint:
+        raise InvalidArgumentError(f"{args.joint_config} configures {joint.lower()}, not {args.joint.lower()}")
     board = mpboard.open_board(args.port)
     try:
-        plan = flash.plan(board, args.joint)
+        plan = flash.plan(board, joint, config)
         if not args.dry_run:
             _apply(board, plan, session)
     finally:
         board.close()
     identity = None
     if args.bus and not args.dry_run:
-        identity = flash.check_identity(session.bus, args.joint, plan.image.address, timeout=args.boot_timeout)
+        identity = flash.check_identity(session.bus, joint, plan.image.address, timeout=args.boot_timeout)
     session.emit(flash.report(plan, dry_run=args.dry_run, identity=identity),
                  human=_render(plan, args.dry_run, identity))
     if identity is not None and not identity.ok:
         raise flash.FlashError("version check failed: " + "; ".join(identity.problems))
     return 0
+
+
+def _show_config(args: argparse.Namespace, session: Session) -> int:
+    """The board's /joint_config.json, checked as its firmware checks it at boot."""
+    from ..firmware import config as firmware_config
+
+    board = mpboard.open_board(args.port)
+    try:
+        raw = board.read(flash.CONFIG_PATH)
+    finally:
+        board.close()
+    if raw is None:
+        session.emit({"port": args.port, "config": None, "valid": False, "problems": ["no /joint_config.json"]},
+                     f"{args.port}: no {flash.CONFIG_PATH} (the joint boots disabled; flash one with --joint)")
+        return 1
+    try:
+        data = json.loads(raw.decode("utf-8"))
+        cfg = firmware_config.parse(data, flash.CONFIG_PATH)
+        problems = list(cfg.errors)
+    except (ValueError, RecursionError) as exc:
+        data, problems = None, [f"not valid JSON ({str(exc)[:80]})"]
+    text = Text(f"{args.port}: {flash.CONFIG_PATH}\n")
+    text.append(json.dumps(data, indent=2) if data is not None else raw.decode("utf-8", "replace")[:2000])
+    text.append("\n" + ("valid" if not problems else "INVALID: " + "; ".join(problems)),
+                style="green" if not problems else "red")
+    session.emit({"port": args.port, "config": data, "valid": not problems, "problems": problems}, text)
+    return 0 if not problems else 1
 
 
 def _apply(board: mpboard.Board, plan: flash.Plan, session: Session) -> None:

@@ -3,26 +3,28 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 from collections.abc import Callable
 
 from rich.live import Live
 from rich.table import Table
 
-from .. import motion
+from .. import motion, report
 from ..arm import Arm
 from ..communicator import Communicator
-from ..firmware import protocol as P
 from ..session import Session
+from .options import joint_name, positive
 
 NAME = "home"
 HELP = "home joints toward their configured end stops (Ctrl-C aborts: STOP)"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("joints", nargs="+", metavar="JOINT", help="j1..j4 or all")
+    parser.add_argument("joints", nargs="+", type=joint_name, metavar="JOINT", help="j1..j4 or all")
     parser.add_argument("--direction", type=int, choices=(-1, 1), help="override the configured direction")
-    parser.add_argument("--timeout", type=float, default=300.0, help="seconds (default 300)")
-    parser.add_argument("--rate", type=float, default=50.0, help="control cycle rate, Hz (default 50)")
+    parser.add_argument("--timeout", type=positive("s"), default=300.0, metavar="S", help="seconds (default 300)")
+    parser.add_argument("--rate", type=positive("Hz"), default=50.0, metavar="HZ",
+                        help="control cycle rate, Hz (default 50)")
 
 
 class ProgressRunner:
@@ -42,26 +44,31 @@ class ProgressRunner:
 def _progress(arm: Arm) -> Table:
     table = Table()
     for column in ("joint", "state", "flags", "velocity"):
-        table.add_column(column)
+        table.add_column(column, justify="right" if column == "velocity" else "left")
     for name, aj in arm.joints.items():
         state = "homed" if aj.state.home == 1.0 else ("homing" if aj.joint.is_busy() else "waiting")
-        table.add_row(name, state, P.describe_flags(aj.joint.flags), f"{aj.state.velocity:+.4f}")
+        table.add_row(name, state, "|".join(report.flags(aj.joint.flags)) or "-",
+                      report.value(aj.state.velocity, aj.config, per_second=True, digits=4))
     return table
 
 
 def run(args: argparse.Namespace, session: Session) -> int:
-    names = list(session.config.joints) if "all" in args.joints else args.joints
+    names = list(session.config.joints) if "all" in args.joints else list(dict.fromkeys(args.joints))
     arm = session.arm_of(names)
     comm = Communicator(arm, frequency=args.rate)
     arm.configure()
     arm.activate()
     directions = {name: args.direction for name in names} if args.direction else None
     t0 = arm.bus.monotonic()
-    with Live(_progress(arm), console=session.console, transient=session.json,
-              auto_refresh=False) as live:
-        runner = ProgressRunner(comm, lambda: live.update(_progress(arm), refresh=True))
-        motion.home(arm, runner, names, directions, timeout=args.timeout)
-    result = {name: {"homed": True, "position": arm[name].state.position} for name in names}
-    session.emit({"joints": result, "seconds": arm.bus.monotonic() - t0},
-                 f"homed {', '.join(names)} in {arm.bus.monotonic() - t0:.1f} s")
+    live = session.console.is_terminal and not session.json
+    with (Live(_progress(arm), console=session.console, auto_refresh=False, transient=True) if live
+          else contextlib.nullcontext()) as display:
+        show = (lambda: display.update(_progress(arm), refresh=True)) if display is not None else (lambda: None)
+        motion.home(arm, ProgressRunner(comm, show), names, directions, timeout=args.timeout)
+    seconds = arm.bus.monotonic() - t0
+    joints = [{**report.joint_ref(name, arm[name].config), "homed": True, "position": arm[name].state.position}
+              for name in names]
+    session.emit({"joints": joints, "seconds": seconds},
+                 "\n".join([f"{j['joint']}: homed at {report.value(j['position'], arm[j['joint']].config)}"
+                            for j in joints] + [f"homed {', '.join(names)} in {seconds:.1f} s"]))
     return 0

@@ -4,13 +4,15 @@ from __future__ import annotations
 
 import argparse
 from dataclasses import asdict
+from typing import Any
 
 from rich.table import Table
 
+from .. import report
 from ..errors import BioscaraError, IncorrectStateError, NotHomedError
-from ..firmware import protocol as P
 from ..firmware import protocol_v2 as V
 from ..session import Session
+from .options import one_joint
 
 NAME = "info"
 HELP = ("identity, protocol, flags, position, velocity, last rejected frame and link statistics "
@@ -18,25 +20,25 @@ HELP = ("identity, protocol, flags, position, velocity, last rejected frame and 
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("joint", help="j1..j4")
+    parser.add_argument("joint", type=one_joint, help="j1..j4")
 
 
 def run(args: argparse.Namespace, session: Session) -> int:
     joint = session.joint(args.joint)
     jc = session.config.joints[args.joint]
-    info: dict[str, object] = {"joint": args.joint, "address": f"0x{jc.address:02x}", "type": jc.type,
-                               "reduction": jc.reduction, "limits": [jc.min, jc.max]}
+    info: dict[str, Any] = {**report.joint_ref(args.joint, jc), "type": jc.type, "reduction": jc.reduction,
+                            "limits": [jc.min, jc.max]}
+    identity = None
     try:
         identity = joint.identity()
-        info.update(firmware=identity.firmware_version, joint_id=identity.joint_id,
-                    spec_hash=f"{identity.spec_hash:08x}", spec_matches=identity.spec_matches)
+        info.update(protocol_version=identity.protocol, firmware=identity.firmware_version,
+                    joint_id=identity.joint_id, spec_hash=f"{identity.spec_hash:08x}",
+                    spec_matches=identity.spec_matches)
         reject = joint.last_reject()
         info["rejected_frames"] = reject.count
-        if reject.count:
-            info["last_rejected"] = reject.text
+        info["last_rejected"] = reject.text if reject.count else None
     except BioscaraError as exc:
-        info["identity"] = f"unavailable ({exc.detail})"
-        identity = None
+        info["identity_error"] = exc.detail
     if session.protocol != "legacy" and identity is not None and identity.protocol >= V.PROTOCOL_V2:
         joint.use_v2()  # the rest is read over protocol v2
     elif session.protocol == "v2":
@@ -47,7 +49,7 @@ def run(args: argparse.Namespace, session: Session) -> int:
     except NotHomedError:
         info["position"] = None
     info["velocity"] = joint.get_velocity()
-    info["flags"] = P.describe_flags(joint.flags)
+    info["flags"] = report.flags(joint.flags)
     info.update(homed=joint.is_homed(), enabled=joint.is_enabled(), stalled=joint.is_stalled(),
                 busy=joint.is_busy())
     link = session.bus.stats.link(jc.address)
@@ -55,8 +57,32 @@ def run(args: argparse.Namespace, session: Session) -> int:
     if joint.v2 is not None:
         info["v2_link"] = asdict(joint.v2.stats)
         joint.close()  # back to the legacy map for whoever comes next
-    table = Table(title=f"{args.joint} on {session.bus.describe()}", show_header=False)
-    for key, value in info.items():
-        table.add_row(key, "not homed" if key == "position" and value is None else str(value))
-    session.emit(info, table)
+    session.emit(info, _table(info, jc, session))
     return 0
+
+
+def _table(info: dict[str, Any], jc: Any, session: Session) -> Table:
+    u = info["unit"]
+    rows = [("address", report.address(info["address"])), ("type", f"{info['type']} (positions in {u})"),
+            ("reduction", f"{info['reduction']:g} motor rad per {u}"),
+            ("limits", f"{jc.min:g}..{jc.max:g} {u}")]
+    if "identity_error" in info:
+        rows.append(("identity", f"unavailable ({info['identity_error']})"))
+    else:
+        rows += [("firmware", f"{info['firmware']} (protocol version {info['protocol_version']}, "
+                  f"joint id {info['joint_id']})"),
+                 ("spec hash", f"{info['spec_hash']} {'ok' if info['spec_matches'] else 'MISMATCH'}"),
+                 ("rejected frames", f"{info['rejected_frames']}"
+                  + (f" (last: {info['last_rejected']})" if info["last_rejected"] else ""))]
+    rows += [("protocol", str(info["protocol"])),
+             ("position", "not homed" if info["position"] is None else report.value(info["position"], jc)),
+             ("velocity", report.value(info["velocity"], jc, per_second=True)),
+             ("flags", "|".join(info["flags"]) or "-"),
+             ("state", ", ".join(f"{k}" if info[k] else f"not {k}" for k in ("homed", "enabled", "stalled", "busy"))),
+             ("link", f"{info['link']['transactions']} transactions, {info['link']['failed_attempts']} failed attempts")]
+    if "v2_link" in info:
+        rows.append(("v2 link", ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in info["v2_link"].items())))
+    table = Table(title=f"{info['joint']} on {session.bus.describe()}", show_header=False)
+    for key, value in rows:
+        table.add_row(key, value)
+    return table

@@ -18,15 +18,16 @@ from typing import Any
 from ..arm import Arm, Lifecycle
 from ..bus import Bus
 from ..config import ArmConfig
-from ..paths import default_state_dir
+from ..paths import default_state_dir, private_file
 from ..hardware import open_arm, open_arm_bus
 from ..session import Session
-from ..shell import Shell
+from ..errors import InvalidArgumentError
+from ..shell import Shell, script_lines
+from .options import count, positive
 
 NAME = "shell"
 HELP = "interactive console: communicator, arm lifecycle, command modes, registers (`help` inside)"
-
-
+USES = ("bus", "config")
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--script", metavar="FILE", help="run FILE's commands and exit; non-zero at the first "
@@ -35,9 +36,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="with a script: run every line, exit non-zero if any failed")
     parser.add_argument("--expert", action="store_true",
                         help="allow `write`: raw register frames that bypass the arm's guards")
-    parser.add_argument("--rate", type=float, default=100.0, metavar="HZ",
+    parser.add_argument("--rate", type=positive("Hz"), default=100.0, metavar="HZ",
                         help="communicator frequency (default 100 Hz)")
-    parser.add_argument("--priority", type=int, default=50, metavar="N",
+    parser.add_argument("--priority", type=count(0, 99), default=50, metavar="N",
                         help="SCHED_FIFO priority of the communicator thread, 0 for normal scheduling (default 50)")
     parser.add_argument("--history", metavar="FILE", type=Path,
                         help="history file (default $XDG_STATE_HOME/bioscara/shell_history)")
@@ -53,16 +54,21 @@ class Context:
 
 
 def run(args: argparse.Namespace, session: Session) -> int:
+    if args.script not in (None, "-"):
+        script_lines(Path(args.script))  # refuses an unreadable script before the bus is opened
     context = open_context(session.config)
     shell = Shell(context, out=lambda text: session.console.print(text, markup=False, highlight=False,
                                                                   soft_wrap=True),
-                  err=session.err, expert=args.expert, frequency=args.rate, priority=args.priority or None)
+                  err=session.err, expert=args.expert, frequency=args.rate, priority=args.priority or None,
+                  keep_alive=True)
     try:
         if args.script not in (None, "-"):
-            with open(args.script, encoding="utf-8") as script:
-                return 0 if shell.run_lines(script, args.script, keep_going=args.keep_going) else 1
+            lines = script_lines(Path(args.script))
+            return 0 if shell.run_lines(lines, args.script, keep_going=args.keep_going) else 1
         if args.script == "-" or not sys.stdin.isatty():
-            return 0 if shell.run_lines(sys.stdin, "<stdin>", keep_going=args.keep_going) else 1
+            stdin = getattr(sys.stdin, "buffer", None)
+            lines = script_lines(stdin) if stdin is not None else sys.stdin
+            return 0 if shell.run_lines(lines, "<stdin>", keep_going=args.keep_going) else 1
         session.console.print(f"bioscara shell on {context.bus.describe()}, joints {', '.join(context.arm.joints)}"
                               f"{' (expert: raw writes allowed)' if args.expert else ''}; `help` lists the "
                               "commands", highlight=False)
@@ -99,14 +105,13 @@ def interactive(shell: Shell, history: Path, *, input: Any = None, output: Any =
 
     store: History
     try:
-        history.parent.mkdir(parents=True, exist_ok=True)
-        store = FileHistory(str(history))  # appends each accepted line to the file
+        store = FileHistory(str(private_file(history)))  # appends each accepted line to the file
     except OSError as exc:
         shell.err(f"history not saved: {exc}")
         store = InMemoryHistory()
     prompt: PromptSession[str] = PromptSession(history=store, completer=_completer(shell), input=input,
                                                output=output)
-    with patch_stdout():  # keeps output from other threads (log lines) off the line being edited
+    with patch_stdout(raw=True):  # output from other threads stays off the line being edited; colours pass
         while not shell.done:
             try:
                 line = prompt.prompt(shell.prompt)

@@ -1,35 +1,99 @@
-"""`bioscara sim --pty`: the configured simulated joints in real time behind pseudo-terminals."""
+"""`bioscara sim [start|status|stop]`: the shared simulated arm that the `sim:` bus reaches;
+`bioscara sim --pty`: a separate simulated arm in the foreground, behind pseudo-terminals only."""
 
 from __future__ import annotations
 
 import argparse
 import sys
+from typing import Any
 
+from rich.console import Group
 from rich.table import Table
+from rich.text import Text
 
+from .. import sim_service
+from ..errors import InvalidArgumentError
 from ..hardware import sim_joint_specs
+from ..paths import default_state_dir
 from ..session import Session
 
 NAME = "sim"
-HELP = ("run the simulated arm in real time: a HIL bridge pseudo-terminal for `--bus serial:PATH` "
-        "and one debug console per joint for `bioscara console PATH`; Ctrl-C stops it")
+HELP = ("the shared simulated arm behind the default `sim:` bus: start it (also done by the first "
+        "command that needs it), show it, stop it (its state is kept until then); --pty: a separate "
+        "arm in the foreground behind pseudo-terminals, Ctrl-C stops it")
+USES = ("config", "json")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--pty", action="store_true", default=True,
-                        help="serve on pseudo-terminals (the default, and the only transport so far)")
+    parser.add_argument("action", nargs="?", choices=("start", "status", "stop"), default="start",
+                        help="start (default: start unless running, then show it), status, stop")
+    parser.add_argument("--pty", action="store_true",
+                        help="instead: run a separate simulated arm in the foreground, behind a HIL bridge "
+                        "pseudo-terminal (for --bus serial:PATH) and one debug console per joint")
 
 
 def run(args: argparse.Namespace, session: Session) -> int:
+    if args.pty:
+        if args.action != "start":
+            raise InvalidArgumentError(f"--pty runs an arm in the foreground; `sim {args.action}` is for the shared one")
+        return _foreground(session)
+    state_dir = default_state_dir()
+    if args.action == "stop":
+        before = sim_service.status(state_dir)
+        stopped = sim_service.stop(state_dir)
+        session.emit({"running": False, "stopped": stopped},
+                     f"stopped the simulated arm (pid {before['pid']})" if stopped and before
+                     else "no simulated arm was running")
+        return 0
+    started = False
+    if args.action == "start":
+        config = session.config
+        started = sim_service.start(state_dir, sim_joint_specs(config), seed=config.sim.seed,
+                                    speed_hz=config.bus.speed_hz)
+    status = sim_service.status(state_dir)
+    if status is None:
+        session.emit({"running": False}, "no simulated arm is running (`bioscara sim` starts one)")
+        return 1
+    data = _describe(status, started)
+    session.emit(data, _render(data))
+    return 0
+
+
+def _describe(status: dict[str, Any], started: bool) -> dict[str, Any]:
+    consoles = status.get("consoles", {})
+    return {"running": True, "started": started, "pid": status["pid"], "socket": status["socket"],
+            "uptime_s": status["uptime_s"], "clients": status["clients"] - 1,  # not counting this one
+            "bridge": status["bridge"],
+            "joints": {spec["firmware_joint"].lower(): {"address": spec["address"],
+                                                        "console": consoles.get(spec["firmware_joint"])}
+                       for spec in status["specs"]}}
+
+
+def _render(data: dict[str, Any]) -> Group:
+    head = Text(f"simulated arm {'started' if data['started'] else 'running'}: pid {data['pid']}, "
+                f"up {data['uptime_s']:.0f} s, {data['clients']} other client(s); `bioscara sim stop` ends it")
+    table = Table(box=None)
+    for column in ("serves", "at", "use with"):
+        table.add_column(column)
+    table.add_row("the sim: bus", data["socket"], "every command (the default bus)")
+    table.add_row("HIL bridge", data["bridge"], f"--bus serial:{data['bridge']}")
+    for joint, entry in data["joints"].items():
+        table.add_row(f"{joint} (0x{entry['address']:02x}) debug console", str(entry["console"]),
+                      f"bioscara console {entry['console']}")
+    return Group(head, table)
+
+
+def _foreground(session: Session) -> int:
     from ..sim_server import SimServer
 
     config = session.config
     server = SimServer(sim_joint_specs(config), seed=config.sim.seed, speed_hz=config.bus.speed_hz)
     try:
-        paths = {"bridge": server.bridge_path, "joints": server.joint_paths}
+        paths = {"bridge": server.bridge_path,
+                 "joints": {joint.lower(): path for joint, path in server.joint_paths.items()}}
         table = Table("serves", "path", "use with", box=None)
         table.add_row("HIL bridge", server.bridge_path, f"--bus serial:{server.bridge_path}")
-        for joint, path in server.joint_paths.items():
+        for joint, path in paths["joints"].items():
             table.add_row(f"{joint} debug console", path, f"bioscara console {path}")
         session.emit(paths, table)
         sys.stdout.flush()  # a parent process reads the paths through a pipe

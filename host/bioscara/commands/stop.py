@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import argparse
 
+from ..joint import Joint
 from ..session import Session
+from .power import each_joint
 
 NAME = "stop"
 HELP = "stop every joint at once (RPM 0; aborts a running homing)"
@@ -15,6 +17,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace, session: Session) -> int:
-    results = session.each_joint(list(session.config.joints), lambda joint: joint.stop(), "stopped")
-    session.emit(results, "\n".join(f"{name}: {result}" for name, result in results.items()))
-    return 0 if all(r == "stopped" for r in results.values()) else 1
+    def stop(joint: Joint) -> str:
+        joint.stop()
+        return "stopped"
+    return each_joint(session, ["all"], stop)

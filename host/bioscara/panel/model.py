@@ -199,7 +199,8 @@ class PanelModel:
             fault = "stall"
         elif failed:
             fault = "lost link"
-        elif self.arm.fault is not None and getattr(self.arm.fault, "joint", None) == name:
+        elif (self.arm.fault is not None and getattr(self.arm.fault, "joint", None) == name
+              and not isinstance(self.arm.fault, CommError)):  # a lost link shows while it is lost
             fault = fault_cause(self.arm.fault)
         mode = next(iter(aj.modes)).value if aj.modes else "off"
         known = self.arm.lifecycle in (Lifecycle.INACTIVE, Lifecycle.ACTIVE)  # read every cycle

@@ -1,0 +1,37 @@
+"""`bioscara pins [j1|FILE.json]`: the wiring of a joint board, from its joint configuration."""
+
+from __future__ import annotations
+
+import argparse
+
+from rich.table import Table
+
+from .. import flash, wiring
+from ..session import Session
+
+NAME = "pins"
+HELP = "the wiring and pin map of a joint board (Pico, TMC2209, AS5600), from its joint configuration"
+USES = ("json",)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("joint", nargs="?", default="j1", metavar="JOINT|FILE.json",
+                        help="a shipped joint (j1..j4, default j1) or a joint configuration you wrote")
+    parser.add_argument("--markdown", action="store_true", help="print the table as Markdown")
+
+
+def run(args: argparse.Namespace, session: Session) -> int:
+    if args.joint.upper() in flash.JOINTS:
+        _, cfg = flash.joint_config(args.joint.upper())
+    else:
+        _, cfg = flash.user_joint_config(args.joint)
+    rows = wiring.pin_map(cfg)
+    if args.markdown and not session.json:
+        print(wiring.markdown(cfg), end="")
+        return 0
+    table = Table("Pico pin", "signal", "connects to", title=f"{cfg.joint.lower()} board ({cfg.source})")
+    for row in rows:
+        table.add_row(*row)
+    session.emit({"joint": cfg.joint.lower(), "address": cfg.address,
+                  "pins": [{"pin": p, "signal": s, "connects_to": t} for p, s, t in rows]}, table)
+    return 0

@@ -1,0 +1,168 @@
+"""The shared simulated arm (`sim:`): one background service, state kept between commands, many
+clients at once, robust to stale sockets, crashes and concurrent starts.
+
+Each test starts the service explicitly in its own state directory and stops it at the end; waits
+are bounded waits on conditions.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import signal
+import socket
+import stat
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from dataclasses import replace
+from pathlib import Path
+
+import pytest
+
+from bioscara import cli, sim_service
+from bioscara.config import load_config
+from bioscara.errors import CommError, ConfigError
+from bioscara.hardware import sim_joint_specs
+from bioscara.sim_service import ServiceBus
+
+SPECS = sim_joint_specs(load_config())
+
+
+@pytest.fixture
+def state_dir(private_home: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[Path]:
+    """The state directory of this test's service; `sim:` is the shared arm here. Stopped at the end."""
+    monkeypatch.delenv("BIOSCARA_BUS")
+    path = private_home / "state" / "bioscara"
+    yield path
+    status = sim_service.status(path) if path.exists() else None
+    if status is not None and not sim_service.stop(path):
+        os.kill(status["pid"], signal.SIGKILL)
+
+
+def wait_until(condition, timeout: float = 10.0) -> bool:  # type: ignore[no-untyped-def]
+    deadline = time.monotonic() + timeout
+    while not condition():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.01)
+    return True
+
+
+def quick_config(tmp_path: Path) -> Path:
+    """The shipped arm with every joint starting just inside the end stop it homes into (real time: short)."""
+    text = (Path(load_config().source)).read_text()
+    head, _, _ = text.partition("[sim.start]")
+    path = tmp_path / "arm.toml"
+    path.write_text(head + "[sim.start]\nj1 = -3.03\nj2 = 0.3375\nj3 = 2.61\nj4 = 2.99\n")
+    return path
+
+
+def bioscara(*argv: str) -> subprocess.Popen[str]:
+    return subprocess.Popen([sys.executable, "-m", "bioscara.cli", *argv], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+
+
+def test_state_is_kept_between_commands_and_clients_share_the_arm(
+        state_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    config = str(quick_config(tmp_path))
+    assert cli.main(["home", "j3", "--config", config]) == 0
+    assert cli.main(["move", "j3", "2.0", "--config", config]) == 0, "the next command finds j3 homed"
+    record = tmp_path / "run.csv"
+    # Two processes on one joint at once: the legacy protocol (v2 keeps one sequence per host).
+    monitor = bioscara("monitor", "--config", config, "--rate", "20", "--duration", "3", "--record",
+                       str(record), "--json", "--protocol", "legacy")
+    assert wait_until(lambda: record.exists() and len(record.read_text().splitlines()) > 3)
+    assert cli.main(["move", "j3", "1.0", "--config", config, "--protocol", "legacy"]) == 0, \
+        "a move beside the monitor"
+    out, err = monitor.communicate(timeout=30)
+    assert monitor.returncode == 0, err
+    assert json.loads(out.splitlines()[-1])["summary"]["errors"] == 0
+    with open(record) as f:
+        f.readline()
+        j3 = [float(row["j3/position"]) for row in csv.DictReader(f)]
+    assert j3[0] == pytest.approx(2.0, abs=0.01) and j3[-1] == pytest.approx(1.0, abs=0.01), \
+        "the monitor saw the other process's move"
+    capsys.readouterr()
+    assert cli.main(["plot", str(record), "--json"]) == 0
+    assert Path(json.loads(capsys.readouterr().out)["png"]).read_bytes()[:4] == b"\x89PNG"
+
+
+def test_start_status_stop(state_dir: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert cli.main(["sim", "status"]) == 1
+    assert "no simulated arm is running" in capsys.readouterr().out
+    assert cli.main(["sim", "--json"]) == 0
+    first = json.loads(capsys.readouterr().out)
+    assert first["started"] and sorted(first["joints"]) == ["j1", "j2", "j3", "j4"]
+    assert first["joints"]["j2"]["address"] == 0x12 and os.path.exists(first["joints"]["j2"]["console"])
+    assert cli.main(["sim", "--json"]) == 0
+    again = json.loads(capsys.readouterr().out)
+    assert not again["started"] and again["pid"] == first["pid"], "one arm: a second start finds it"
+    assert cli.main(["sim", "stop"]) == 0
+    assert f"stopped the simulated arm (pid {first['pid']})" in capsys.readouterr().out
+    assert not (state_dir / "sim.sock").exists() and sim_service.status(state_dir) is None
+    assert cli.main(["sim", "stop"]) == 0 and "no simulated arm was running" in capsys.readouterr().out
+
+
+def test_files_are_private(state_dir: Path) -> None:
+    assert sim_service.start(state_dir, SPECS)
+    assert stat.S_IMODE(state_dir.stat().st_mode) == 0o700
+    for name in ("sim.sock", "sim.lock", "sim.log"):
+        assert stat.S_IMODE((state_dir / name).stat().st_mode) == 0o600, name
+
+
+def test_concurrent_starts_run_one_arm(state_dir: Path) -> None:
+    results: list[bool] = []
+    threads = [threading.Thread(target=lambda: results.append(sim_service.start(state_dir, SPECS)))
+               for _ in range(4)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join(timeout=30)
+    assert sorted(results) == [False, False, False, True]
+    status = sim_service.status(state_dir)
+    assert status is not None
+    assert int((state_dir / "sim.lock").read_text()) == status["pid"]
+
+
+def test_a_stale_socket_and_a_crashed_service_do_not_block_the_next_start(state_dir: Path) -> None:
+    state_dir.mkdir(parents=True, mode=0o700)
+    stale = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    stale.bind(str(state_dir / "sim.sock"))  # left behind: nobody listens on it
+    stale.close()
+    assert sim_service.start(state_dir, SPECS)
+    bus = ServiceBus(SPECS, state_dir)
+    assert bus.scan() == [0x11, 0x12, 0x13, 0x14]
+    pid = sim_service.status(state_dir)["pid"]  # type: ignore[index]
+    os.kill(pid, signal.SIGKILL)
+    assert wait_until(lambda: sim_service.status(state_dir) is None)
+    with pytest.raises(CommError, match="not running"):
+        bus.scan()  # the arm is gone: this client is told, it does not start a new one by itself
+    assert sim_service.start(state_dir, SPECS), "the lock died with the service"
+    assert bus.scan() == [0x11, 0x12, 0x13, 0x14], "the client reconnects"
+    bus.close()
+
+
+def test_another_configuration_is_refused_until_the_arm_is_stopped(state_dir: Path) -> None:
+    sim_service.start(state_dir, SPECS)
+    other = [replace(spec, address=spec.address + 0x10) for spec in SPECS]
+    with pytest.raises(ConfigError, match="bioscara sim stop"):
+        ServiceBus(other, state_dir)
+    sim_service.stop(state_dir)
+    ServiceBus(other, state_dir).close()
+
+
+def test_a_client_speaking_garbage_is_hung_up_on_and_others_are_served(state_dir: Path) -> None:
+    sim_service.start(state_dir, SPECS)
+    bus = ServiceBus(SPECS, state_dir)
+    rogue = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    rogue.settimeout(5.0)
+    rogue.connect(str(state_dir / "sim.sock"))
+    rogue.sendall(b"\xff\xff\xff\xff" + b"\x00" * 64)
+    assert rogue.recv(16) == b"", "hung up"
+    rogue.close()
+    assert bus.transfer(0x11, bytes([0x0F]), 2)[0] == ord("O"), "PING answered"
+    bus.close()
