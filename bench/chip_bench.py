@@ -75,7 +75,13 @@ def parse_figures(out: str) -> dict[str, float]:
     return figures
 
 
-PRODUCERS: list[Callable[[], dict[str, float]]] = [main_loop_figures]
+def bus_figures() -> dict[str, float]:
+    """The joint-bus figures (bench/chip_bus.py): legacy transactions and cycles, then protocol v2."""
+    import chip_bus
+    return chip_bus.deployed_figures()
+
+
+PRODUCERS: list[Callable[[], dict[str, float]]] = [main_loop_figures, bus_figures]
 
 
 def main() -> int:

@@ -12,6 +12,13 @@ controller (chip/src/joint_bus.mjs), every figure in emulated microseconds.
   failed transaction (a NAK, or SCL held past the controller's 35 ms stretch timeout: the joint
   wedged the bus, see chip/README.md), which are left out of the median.
 
+* `chip.scl_held_us.v2` / `chip.irq_cpu_us.v2`: one protocol v2 transaction (7-byte mailbox
+  write, repeated START, 8-byte state read) at 400 kHz, after the legacy switch (PROTOCOL = 2) and
+  the sync; `chip.cycle_us.v2.<kHz>`: one joint's v2 cycle (that one transaction) cycled at 100 Hz;
+  `chip.cycle_wall_over_wire.v2.400`: its span over its wire time (156 bit times) at 400 kHz. The
+  frame is a NONE poll repeated with one seq (a retry to the joint): mem mode serves it from C
+  either way, so the bus timing is that of any v2 frame.
+
 The joint is enabled first (SETUP, sent at 100 kHz: at 400 kHz the rp2 driver splits 5-byte
 commands, see chip/README.md) when the device fakes are on its pins; without them it is disabled
 and answers with its flags. `transaction_figures` is the generic per-transaction API (v2 frames too).
@@ -28,6 +35,7 @@ ROOT = __import__("pathlib").Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT)]
 
 from bioscara.firmware import protocol as P  # noqa: E402
+from bioscara.firmware import protocol_v2 as V  # noqa: E402
 from chip.board import EmulatedPico  # noqa: E402
 from chip.i2c import JointBusClient, Transaction, joint_bus_plugin  # noqa: E402
 
@@ -88,6 +96,50 @@ def enable(bus: JointBusClient) -> bool:
     return not flags & P.FLAG_NOTENABLED
 
 
+def switch_to_v2(bus: JointBusClient, address: int = ADDRESS) -> bytes:
+    """The legacy PROTOCOL = 2 command as our host sends it, then NONE frames until the joint
+    acknowledges one (a state read in a transaction shows the frame before: its write is taken by
+    the next main-loop pass); returns that frame (a v2 transaction's 7-byte write)."""
+    write = bytes([P.PROTOCOL]) + P.register("PROTOCOL").encode(V.PROTOCOL_V2)
+    bus.transfer(address, write, 1, gap_us=GAP_US)
+    frame = b""
+    for seq in range(1, 60):
+        state = V.decode_state(address, bus.transfer(
+            address, V.encode_frame(address, V.CMD_NONE, b"", seq), V.STATE_SIZE, gap_us=GAP_US).data)
+        if state is not None and seq > 1 and state[-1] == seq - 1:
+            return frame
+        frame = V.encode_frame(address, V.CMD_NONE, b"", seq)
+    raise RuntimeError(f"the joint at 0x{address:02x} never acknowledged a v2 frame")
+
+
+def v2_figures(image: Any, plugins: Iterable[dict[str, Any]] = ()) -> dict[str, float]:
+    """The v2 figures on a freshly booted joint (the legacy cycle at 1 MHz may wedge the bus)."""
+    with EmulatedPico(image, plugins=[*plugins, joint_bus_plugin(khz=400)]) as pico:
+        bus = JointBusClient(pico)
+        wait_on_bus(bus)
+        return v2_bus_figures(bus)
+
+
+def v2_bus_figures(bus: JointBusClient) -> dict[str, float]:
+    figures: dict[str, float] = {}
+    bus.set_khz(400)
+    frame = switch_to_v2(bus)
+    held, irq, _ = transaction_figures(bus, frame, V.STATE_SIZE)
+    figures["chip.scl_held_us.v2"] = round(held, 1)
+    figures["chip.irq_cpu_us.v2"] = round(irq, 1)
+    wire_bits = P.wire_bits(len(frame), V.STATE_SIZE)
+    for khz in SPEEDS_KHZ:
+        bus.set_khz(khz)
+        span, failed = cycle_figure(bus, [(frame, V.STATE_SIZE)])
+        if span is not None:
+            figures[f"chip.cycle_us.v2.{khz}"] = round(span, 1)
+            if khz == 400:
+                figures["chip.cycle_wall_over_wire.v2.400"] = round(span / (wire_bits * 1000 / khz), 3)
+        figures[f"chip.cycle_failures.v2.{khz}"] = failed
+    bus.set_khz(400)
+    return figures
+
+
 def bus_figures(image: Any, plugins: Iterable[dict[str, Any]] = ()) -> dict[str, float]:
     figures: dict[str, float] = {}
     with EmulatedPico(image, plugins=[*plugins, joint_bus_plugin(khz=400)]) as pico:
@@ -110,24 +162,33 @@ def bus_figures(image: Any, plugins: Iterable[dict[str, Any]] = ()) -> dict[str,
     return figures
 
 
-def main() -> int:
-    """The figures alone (`make bench-chip` runs them with the others), with the device fakes."""
+def deployed_figures(producers: Sequence[Any] = (bus_figures, v2_figures)) -> dict[str, float]:
+    """`producers` (image, plugins) -> figures on the deployed J1 with its device fakes."""
     import tempfile
     from pathlib import Path
 
     from chip import fsimage
     from chip.joint_devices import JOINT_DEVICES_PLUGIN
+
+    figures: dict[str, float] = {}
+    with tempfile.TemporaryDirectory() as directory:
+        image = Path(directory) / "J1.img"
+        fsimage.joint_image("J1", image)
+        for produce in producers:
+            figures.update(produce(image, [JOINT_DEVICES_PLUGIN]))
+    return figures
+
+
+def main() -> int:
+    """The figures alone (`make bench-chip` runs them with the others)."""
     from chip.paths import missing
 
     problem = missing()
     if problem:
         print(f"chip bus figures skipped: {problem}", file=sys.stderr)
         return 0
-    with tempfile.TemporaryDirectory() as directory:
-        image = Path(directory) / "J1.img"
-        fsimage.joint_image("J1", image)
-        for name, value in bus_figures(image, [JOINT_DEVICES_PLUGIN]).items():
-            print(f"{name} {value:g}")
+    for name, value in deployed_figures().items():
+        print(f"{name} {value:g}")
     return 0
 
 
