@@ -8,6 +8,7 @@ same on every machine.
 from __future__ import annotations
 
 import asyncio
+from dataclasses import replace
 import sys
 from pathlib import Path
 
@@ -22,6 +23,7 @@ SIZE = (160, 50)
 
 def render_screenshot(path: Path) -> None:
     config = load_config()
+    config = replace(config, bus=replace(config.bus, url="sim:virtual"))  # in this process, in virtual time
     bus = open_arm_bus(config)
     model = PanelModel(config, open_arm(config, bus), open_gripper(config, bus.monotonic), threaded=False)
     app = PanelApp(model)
