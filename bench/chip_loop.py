@@ -1,6 +1,8 @@
 """Runs ON the emulated Pico (bench/chip_bench.py puts it in flash as /chip_loop.mpy): the deployed joint's
 own `app.run()`, unmodified, with `JointController.service` and `DebugConsole.poll` wrapped to
-measure the main loop. Nothing here is part of the firmware; the wrappers do not allocate.
+measure the main loop. Nothing here is part of the firmware; the wrappers do not allocate. Before
+measuring it hands the core a SETUP frame, as the host's I2C transaction would, so the host's
+cycling SETRPM (bench/chip_bus.py host_cycle) turns the motor: the joint is moving.
 
     import chip_loop; chip_loop.run(5000)
 
@@ -22,6 +24,7 @@ from array import array
 from micropython import const
 
 from joint import app, core, debug
+from joint import protocol as P
 
 ALLOC_CALLS = const(40)
 STALL_US = const(3000)
@@ -46,6 +49,8 @@ _SKIP_NEXT = const(13)
 _ITERATION_MAX = const(14)
 _ALLOC_DONE = const(15)
 
+# The original host's SETUP (drive 30 %, hold 10 %), so the host's cycling SETRPM turns the joint.
+_SETUP = bytearray((P.SETUP, 30, 10, 0, 0))
 _service = core.JointController.service
 _poll = debug.DebugConsole.poll
 _ticks_us = time.ticks_us
@@ -111,7 +116,9 @@ def _timed_service(self):
 def _first_poll(self):
     s = _s
     if s[_PHASE] == 0:
-        # The joint is built, on the bus, its console up: collect, note the heap, start measuring.
+        # The joint is built, on the bus, its console up: enable it as a host would, collect, note
+        # the heap, start measuring.
+        self.core.on_frame(_SETUP, len(_SETUP))
         gc.collect()
         s[_HEAP_FREE] = gc.mem_free()
         s[_PHASE] = 1
