@@ -13,13 +13,7 @@ Event handling (see reference/i2c-facts.md section 1.4):
   which gets a pad byte. END_READ closes the transaction.
 """
 
-try:
-    import micropython
-except ImportError:  # CPython: the emitter decorators do nothing
-    class micropython:
-        @staticmethod
-        def native(function):
-            return function
+from .emitters import micropython
 
 from .irq import COUNTER_MASK
 from .protocol import MAX_FRAME, MAX_REPLY

@@ -6,13 +6,7 @@ reply already shows the command's effect, as the original firmware's did), copie
 a preallocated queue slot and answers from reply bytes the main loop packed in advance.
 """
 
-try:
-    import micropython
-except ImportError:  # CPython: the emitter decorators do nothing
-    class micropython:
-        @staticmethod
-        def native(function):
-            return function
+from .emitters import micropython
 
 from .protocol import (
     BY_ADDR, FLAG_ERROR, FLAG_NOTENABLED, FLAG_STALL, HOMEOFFSET, LASTERROR, MAX_FRAME, PING, REJECT_BUSY,

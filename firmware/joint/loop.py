@@ -6,13 +6,7 @@ supervision (`supervise.py`) and packs the reply caches the IRQ serves. Its writ
 reads are wrapped in `critical` sections.
 """
 
-try:
-    import micropython
-except ImportError:  # CPython: the emitter decorators do nothing
-    class micropython:
-        @staticmethod
-        def native(function):
-            return function
+from .emitters import micropython
 
 from .fixed import ANGLE_Q, RPM_Q, pack_q
 from .irq import COUNTER_MASK, MOTION_BLOCKED, QUEUE_SLOTS, SLOT, SLOT_FLAGS, SLOT_HALTS, SLOT_STOPS

@@ -21,13 +21,7 @@ use amax for acceleration and deceleration alike; HOLD keeps v. step() integrate
 exactly, so the result does not depend on how dt is sliced.
 """
 
-try:
-    import micropython
-except ImportError:  # CPython: the emitter decorators do nothing
-    class micropython:
-        @staticmethod
-        def native(function):
-            return function
+from .emitters import micropython
 
 import math
 

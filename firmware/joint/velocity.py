@@ -13,13 +13,7 @@ Hardware-neutral: the simulated motor and the Pico backend feed it encoder count
 sampling rate.
 """
 
-try:
-    import micropython
-except ImportError:  # CPython: the emitter decorators do nothing
-    class micropython:
-        @staticmethod
-        def native(function):
-            return function
+from .emitters import micropython
 
 
 class VelocityEstimator:

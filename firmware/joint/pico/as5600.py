@@ -9,13 +9,7 @@ Units: 4096 counts per revolution. With the library's 51200 usteps per revolutio
 12.5 usteps (0.0879 degrees), 8x coarser than the uStepper's TLE5012B (1.5625 usteps).
 """
 
-try:
-    import micropython
-except ImportError:  # CPython: the emitter decorators do nothing
-    class micropython:
-        @staticmethod
-        def native(function):
-            return function
+from ..emitters import micropython
 
 try:
     from micropython import const

@@ -24,13 +24,7 @@ Default wiring (DEFAULT_PINS; the joint bus target is I2C0 on GP4 SDA / GP5 SCL)
     TMC2209 MS1/MS2 set the UART node address (tmc_address); SPREAD tied low.
 """
 
-try:
-    import micropython
-except ImportError:  # CPython: the emitter decorators do nothing
-    class micropython:
-        @staticmethod
-        def native(function):
-            return function
+from ..emitters import micropython
 
 from ..clock import MonotonicClock
 from ..fixed import LIMIT, muldiv

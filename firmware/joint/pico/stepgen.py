@@ -29,13 +29,7 @@ ustep, so 1.2 MHz gives 1.08 M usteps/s = 1266 rpm (the joints' fastest setting 
 Speed changes take effect at the next tick: one loop period of latency.
 """
 
-try:
-    import micropython
-except ImportError:  # CPython: the emitter decorators do nothing
-    class micropython:
-        @staticmethod
-        def native(function):
-            return function
+from ..emitters import micropython
 
 try:
     from micropython import const
