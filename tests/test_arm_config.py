@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from bioscara.config import ArmConfig, load_config, parse_config
+from bioscara.config import ArmConfig, load_config, parse_config, resolve_config
 from bioscara.errors import ConfigError
 
 
@@ -274,7 +274,7 @@ def test_sim_start_for_a_joint_that_is_not_configured(tmp_path: Path) -> None:
 def test_sim_payload_and_noise_shape_the_simulated_arm(tmp_path: Path) -> None:
     from bioscara.hardware import open_arm_bus
     path = edited(tmp_path, "payload_kg = 0.0", "payload_kg = 1.0")
-    heavy, bare = open_arm_bus(load_config(str(path))), open_arm_bus(load_config())
+    heavy, bare = open_arm_bus(resolve_config(str(path))), open_arm_bus(resolve_config())  # in-process simulators
     # J2 carries the payload's weight through its screw: more torque on the motor (sign: down).
     assert heavy.joint(0x12).stepper._gravity < bare.joint(0x12).stepper._gravity < 0.0
     path = edited(tmp_path, 'noise = "nominal"', 'noise = "loud"')

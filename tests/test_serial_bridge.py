@@ -204,7 +204,7 @@ def test_garbage_truncation_and_bit_flips_are_survived_without_wrong_data(meddle
 def test_one_damaged_byte_never_faults_the_arm(config: ArmConfig) -> None:
     """A byte damaged on the serial link, in either direction, is retried inside the deadman.
 
-    The joints' deadman is 300 ms here rather than 50: the simulator runs in this process, on a
+    The joints' deadman and our host's watchdog are 300 ms here rather than 50 and 100: the simulator runs in this process, on a
     machine shared with the rest of the suite. What proves the answer is not waited out is that
     every damaged answer was given up at once (`damaged`), none timed out.
     """
@@ -216,6 +216,7 @@ def test_one_damaged_byte_never_faults_the_arm(config: ArmConfig) -> None:
 
     rng = random.Random(12)
     specs = [replace(spec, deadman_ms=300) for spec in sim_joint_specs(config)]
+    config = replace(config, joints={name: replace(joint, watchdog_ms=300) for name, joint in config.joints.items()})
     damaged = {"down": 0, "up": 0}
 
     def damage(direction: str, every: int) -> Callable[[bytes], bytes]:

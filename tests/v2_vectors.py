@@ -63,7 +63,9 @@ def sim_vectors() -> list[Vector]:
     xfer(frame(V.CMD_NONE) + b"\x00", V.STATE_SIZE, "v2 overlong frame (the read starts at offset 8)")
     xfer(frame(V.CMD_NONE), V.STATE_SIZE, "v2 NONE: FRAME shown")
     xfer(frame(P.STOP, P.register("STOP").encode(0)), V.STATE_SIZE, "v2 STOP")
-    xfer(frame(P.PROTOCOL, P.register("PROTOCOL").encode(V.PROTOCOL_LEGACY)), V.STATE_SIZE, "v2 PROTOCOL 1")
+    legacy = frame(P.PROTOCOL, P.register("PROTOCOL").encode(V.PROTOCOL_LEGACY))
+    xfer(legacy, V.STATE_SIZE, "v2 PROTOCOL 1")
+    xfer(legacy, V.STATE_SIZE, "v2 PROTOCOL 1 again: its verdict (the joint switches after this read)")
     xfer(bytes([P.PING]), 2, "legacy PING again")
     return out
 

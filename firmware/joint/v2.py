@@ -83,6 +83,7 @@ class MemLink:
         self.rejected = 0  # passed the link checks, refused by the command's own checks
         self.deferred = 0  # swaps postponed because a transaction was in progress
         self.last_write_ms = core.clock.ticks_ms()
+        self.applied_writes = 0  # `writes` when the last frame was applied
         self._pack()
         self._published[:] = self._staged
         self._state[:] = self._staged
@@ -160,6 +161,7 @@ class MemLink:
         self.ack = rx[V.M_SEQ]
         self._last[:] = rx
         self.verdict = self._apply(rx)
+        self.applied_writes = self.writes
         if self.verdict == V.REASON_OK:
             if rx[V.M_CMD] == V.CMD_NONE:
                 self.polls = (self.polls + 1) & COUNTER_MASK
@@ -211,7 +213,8 @@ class MemLink:
 class ProtocolSwitch:
     """Which map the joint serves. It boots legacy (the original host works unchanged); the
     legacy PROTOCOL register (2) moves it to v2; the v2 PROTOCOL command (1) or `SILENCE_MS`
-    without a write from the host moves it back. The switch happens in the main loop.
+    without a write from the host moves it back. The switch happens in the main loop; back to
+    legacy only after the host's next transaction (it has read the command's verdict by then).
 
     `make_target(mem)` creates the `I2CTarget` (mem None: the legacy IRQ target; else the v2
     memory with `mem_addrsize=0`), `legacy_adapter(target)` the legacy IRQ path on it, and
@@ -226,6 +229,8 @@ class ProtocolSwitch:
         self._critical = critical
         self._bus_active_for = bus_active_for
         self.protocol = V.PROTOCOL_LEGACY
+        self._request = 0  # a protocol the host asked for, not served yet
+        self._request_writes = -1
         self.switches = 0
         self.link = None
         self.target = make_target(None)
@@ -238,8 +243,15 @@ class ProtocolSwitch:
         if request:
             core.protocol_request = 0
             if request != self.protocol:
-                self._switch(request)
+                self._request = request
+                self._request_writes = self.link.applied_writes if self.link is not None else -1
         link = self.link
+        if self._request and (link is None or link.writes != self._request_writes):
+            # A v2 joint keeps its map until a transaction after the one that carried the
+            # command: the host reads the verdict there, and a legacy write before the switch
+            # would only overwrite the mailbox.
+            self._switch(self._request)
+            link = self.link
         if link is not None:
             link.poll()
             silent = core.clock.ticks_diff(core.clock.ticks_ms(), link.last_write_ms)
@@ -267,6 +279,7 @@ class ProtocolSwitch:
             self.target = self._make_target(None)
             self.adapter = self._legacy_adapter(self.target)
         self.protocol = protocol
+        self._request = 0
         self.switches += 1
         self._core.log.info("serving protocol %s" % ("v2" if protocol == V.PROTOCOL_V2 else "legacy"))
 

@@ -160,6 +160,14 @@ class Arm:
                 aj.joint.close()
             self.lifecycle = Lifecycle.UNCONFIGURED
 
+    def release(self) -> None:
+        """Let go of every joint whatever the lifecycle, without motor I/O: each returns to the
+        legacy map, a joint left holding keeps holding (see `Joint.close`). Idempotent."""
+        with self._lock:
+            for aj in self.joints.values():
+                aj.joint.close()
+            self.lifecycle = Lifecycle.UNCONFIGURED
+
     def activate(self) -> None:
         """Enable every joint with its limits; commands start at the measured position, velocity 0."""
         with self._lock:

@@ -35,6 +35,7 @@ log = logging.getLogger("bioscara.joint")
 
 CACHED_FLAGS = P.FLAG_STALL | P.FLAG_BUSY | P.FLAG_NOTHOMED | P.FLAG_NOTENABLED
 V2_SWITCH_S = 0.001  # one pass of the joint's main loop
+V2_SWITCH_TIMEOUT_S = 0.05  # the slowest pass the chip shows, a garbage collection included
 V2_FALLBACK_AFTER = 3  # corrupted v2 states in a row before checking whether the joint went legacy
 # A joint resting at its end stop reads a hair beyond it: encoder noise and error at rest, and the
 # float32 motor degrees of the wire. Positions this close (motor degrees) beyond a limit count as
@@ -149,9 +150,10 @@ class Joint:
 
         A joint speaking v2 is returned to the legacy map, so any host can take over at once; if
         that fails (bus down) it returns by itself after protocol_v2.SILENCE_MS. A watchdog this
-        host turned on is turned off first: a joint left holding keeps holding, as it would for
-        the original host (whose deadman covers velocity only)."""
-        if self.watchdog_ms and self._open:
+        host turned on is turned off first, unless the joint is busy (homing): a joint left
+        holding keeps holding, as it would for the original host (whose deadman covers velocity
+        only), and a homing this host started stops when it is gone."""
+        if self.watchdog_ms and self._open and not self.flags & P.FLAG_BUSY:
             try:
                 self.set_watchdog(0)
             except BioscaraError as exc:
@@ -185,8 +187,8 @@ class Joint:
 
     def use_legacy(self) -> None:
         """Return the joint to the legacy register map (the v2 PROTOCOL command). The joint
-        switches in the main-loop pass after it accepted the command, which may be before its
-        verdict can be read: the legacy PING that follows is the confirmation."""
+        keeps serving v2 until this host has read the verdict, then switches in a main-loop
+        pass: the legacy PING that follows is the confirmation."""
         self._require_open()
         link = self.v2
         if link is None:
@@ -194,20 +196,30 @@ class Joint:
         problem: BioscaraError | None = None
         for _ in range(3):
             try:
-                link.post(P.PROTOCOL, P.register(P.PROTOCOL).encode(V.PROTOCOL_LEGACY))
+                link.command(P.PROTOCOL, P.register(P.PROTOCOL).encode(V.PROTOCOL_LEGACY))
             except CommError as exc:
-                problem = exc
-                continue
+                problem = exc  # perhaps only the verdict was lost: the PING below tells
             self.v2 = None
-            self.bus.sleep(2 * V2_SWITCH_S)
             try:
-                self.check_com()
+                self._await_legacy()
                 return
             except BioscaraError as exc:
                 problem = exc
                 self.v2 = link
         raise CommError(f"the joint did not return to the legacy map ({problem.detail if problem else ''})",
                         joint=self.name)
+
+    def _await_legacy(self) -> None:
+        """PING until the joint answers in the legacy map, up to V2_SWITCH_TIMEOUT_S."""
+        deadline = self.bus.monotonic() + V2_SWITCH_TIMEOUT_S
+        while True:
+            self.bus.sleep(V2_SWITCH_S)
+            try:
+                self.check_com()
+                return
+            except BioscaraError:
+                if self.bus.monotonic() >= deadline:
+                    raise
 
     def take_over_v2(self) -> bool:
         """True (now speaking v2) if the joint already serves v2, left so by an earlier host."""

@@ -31,6 +31,7 @@ class Session:
         self._bus = bus
         self._owns_bus = bus is None
         self._arm: Arm | None = None
+        self._opened: list[Arm | Joint] = []  # released at close()
 
     @property
     def config(self) -> ArmConfig:
@@ -47,8 +48,12 @@ class Session:
     @property
     def arm(self) -> Arm:
         if self._arm is None:
-            self._arm = open_arm(self.config, self.bus, self.protocol)
+            self._arm = self._keep(open_arm(self.config, self.bus, self.protocol))
         return self._arm
+
+    def _keep(self, what: Any) -> Any:
+        self._opened.append(what)
+        return what
 
     @property
     def protocol(self) -> str:
@@ -60,7 +65,7 @@ class Session:
         name = name.lower()
         if name not in self.config.joints:
             raise InvalidArgumentError(f"no joint {name!r}; the configuration has {', '.join(self.config.joints)}")
-        joint = make_joint(self.config.joints[name], self.bus)
+        joint = self._keep(make_joint(self.config.joints[name], self.bus))
         joint.init()
         return joint
 
@@ -89,9 +94,19 @@ class Session:
         if unknown:
             raise InvalidArgumentError(f"no joint {', '.join(unknown)}; the configuration has {', '.join(self.config.joints)}")
         config = replace(self.config, joints={name: self.config.joints[name] for name in names})
-        return open_arm(config, self.bus, self.protocol)
+        return self._keep(open_arm(config, self.bus, self.protocol))
 
     def close(self) -> None:
-        """Release the bus. Joints keep their state: a joint that was moved keeps holding."""
+        """Release the joints and the bus. Joints keep their state: a joint that was moved keeps
+        holding, and the next command (of any host) finds it in the legacy map."""
+        for opened in reversed(self._opened):
+            try:
+                if isinstance(opened, Arm):
+                    opened.release()
+                else:
+                    opened.close()
+            except BioscaraError:
+                pass  # the bus is gone: the joint falls back by itself (host silence)
+        self._opened.clear()
         if self._bus is not None and self._owns_bus:
             self._bus.close()
