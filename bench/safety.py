@@ -211,10 +211,14 @@ def collision(s: Collision) -> dict:
     k, damping = M.stop_stiffness(s.joint, s.stop, PAYLOAD[s.joint] if s.payload else 0.0)
     m.add_obstacle(wall, 1, stiffness=k, damping=damping)
     contact = [None]
+    slip = [None]  # the first pole slip after the contact: the motor overpowered
+    slips = m.slipped_periods()
 
     def done() -> bool:
         if contact[0] is None and m.load_angle() >= wall:
             contact[0] = rig.clock.now_us
+        if contact[0] is not None and slip[0] is None and m.slipped_periods() != slips:
+            slip[0] = rig.clock.now_us
         return bool(rig.flags & P.FLAG_STALL)
     hit = rig.run(ahead / (s.rpm * 6.0) + 3.0, step_s=0.0005, until=done)
     if contact[0] is None:
@@ -223,7 +227,7 @@ def collision(s: Collision) -> dict:
     if not hit:
         return {"detected": False, "latency_ms": NAN, "false_stall": False, "lost_steps": False}
     return {"detected": True, "latency_ms": (rig.clock.now_us - contact[0]) / 1000.0, "false_stall": False,
-            "lost_steps": False}
+            "lost_steps": False, "slip_ms": NAN if slip[0] is None else (slip[0] - contact[0]) / 1000.0}
 
 
 @dataclass(frozen=True)

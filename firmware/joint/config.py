@@ -55,11 +55,12 @@ SCHEMA = (
         ("window_offset", _NUM, 90.0, 0.0, 100000.0),  # usteps
         ("slope", _NUM, 0.0, -100000.0, 100000.0),  # usteps per rad/s
         # "original": the filtered-PID-error detector above; "tracking": tracking.py, the encoder
-        # no longer following the driver's field. Constants from tools/derive_safety_constants.py.
+        # no longer following the driver's field. Constants from bench/derive_safety.py.
         ("detector", _STR, "original", DETECTORS, None),
         ("track_base", _INT, 320, 16, 100000),  # usteps of lag beyond any free-running lag
         ("track_tau_ms", _INT, 10, 0, 1000),  # plus this many ms of field travel at the speed,
         ("track_cap", _INT, 100000, 0, 1000000),  # at most this many usteps
+        ("track_slope_q8", _INT, 0, 0, 255),  # encoder error per ustep of travel, /256, left out
         ("track_window", _INT, 20, 1, 64),  # samples the lag is measured over
         ("track_confirm", _INT, 2, 1, 64),  # samples in a row above the threshold
         ("track_sample_ms", _INT, 5, 1, 100),

@@ -65,7 +65,7 @@ class JointController(IrqPath, MainLoop, Handlers, Tasks, Supervisor):
         self.stall = StallDetector(cfg.stall)
         st = cfg.stall
         self.track = TrackingDetector(st.track_base, st.track_tau_ms, st.track_window, st.track_confirm,
-                                      st.track_sample_ms, st.track_cap)
+                                      st.track_sample_ms, st.track_cap, st.track_slope_q8)
         self.detector = DETECTOR_NAMES.index(st.detector) if st.detector in DETECTOR_NAMES else 0
         self.homing = HomingMonitor(cfg.homing, st)
         # HOME sensitivity noise floor, integer for the IRQ: threshold + speed * per_rpm (Q10).

@@ -4,19 +4,24 @@ A stepper follows its coil field within the load angle: less than one full step 
 while it holds synchronism, whatever the speed, acceleration or load. A collision that stops the
 rotor, or an overload that makes it slip poles, lets the field run away from the encoder at the
 commanded speed. So, per sample, with `field` the usteps the driver has turned the field (never
-relabelled by the closed loop) and `encoder` the measured position in usteps:
+relabelled by the closed loop), `encoder` the measured position in usteps and s = field - encoder:
 
-    lag = (field - encoder) now - its extreme since the motion in this direction began,
-          over at most the last `window` samples, taken in the direction of motion
+    lag = the largest, over the samples i since the motion in this direction began (at most the
+          last `window`), of  d * (s_now - s_i) - slope * |field_now - field_i|
     stalled when lag > base + min(|field speed| * tau, cap) for `confirm` samples in a row
 
-The window keeps the encoder's slow harmonic error out at low speed; the speed term covers its
-faster swing at higher speeds, up to `cap` (the error's full swing: it cannot change by more within
-any window), where the lag of a blocked rotor grows by thousands of usteps per sample anyway. A reversal restarts the extreme (the load angle does not change sign
+(d: the direction of motion). The encoder's harmonic error (1x and 2x per revolution) changes s by
+at most `slope` (Q8: /256) per ustep the rotor turns, so its share of a lag grows with the travel
+between the two samples, not with time: the slope term takes it out at every speed, and `base` is
+left with what the load angle, ringing and noise add. A blocked rotor's lag grows by one ustep per
+ustep of field, far more than `slope`. The speed term (tau, capped) is a second, older allowance
+for what grows with speed. A reversal restarts the history (the load angle does not change sign
 through one: decelerating and accelerating the other way take torque the same way). Nothing is
 judged while the field stands still.
 
-Integer arithmetic on preallocated state only: inputs are counters that may wrap at 2**30.
+The extreme is kept by a monotonic queue (O(1) per sample, amortized). Integer arithmetic on
+preallocated state only: inputs are counters that may wrap at 2**30; the Q8 history is re-based
+before it could leave MicroPython's small integers.
 """
 
 from array import array
@@ -30,6 +35,7 @@ except ImportError:
 _WRAP = const(0x3FFFFFFF)
 _HALF = const(0x20000000)
 _SPAN = const(0x40000000)
+_REBASE = const(0x4000000)  # |history| in Q8 beyond which it is shifted back to 0 (2**26)
 
 
 def wrapped_diff(a, b):
@@ -40,20 +46,26 @@ def wrapped_diff(a, b):
 
 class TrackingDetector:
     """base, cap: usteps; tau_ms: speed allowance in ms of field travel; window, confirm:
-    samples; sample_ms: the sampling period the caller keeps (used for the speed allowance)."""
+    samples; sample_ms: the sampling period the caller keeps (used for the speed allowance);
+    slope_q8: the encoder error allowed per ustep of travel, /256."""
 
-    def __init__(self, base, tau_ms, window, confirm, sample_ms, cap=1 << 28):
+    def __init__(self, base, tau_ms, window, confirm, sample_ms, cap=1 << 28, slope_q8=0):
         self.base = int(base)
         self.tau_ms = int(tau_ms)
         self.cap = int(cap)
         self.sample_ms = int(sample_ms)
         self.confirm = int(confirm)
-        self._ring = array("i", [0] * max(1, int(window)))
-        self._n = len(self._ring)
-        self._i = 0
+        self.slope_q8 = int(slope_q8)
+        n = max(1, int(window))
+        self._n = n
+        self._vals = array("i", [0] * n)  # the queue: d * z of candidate extremes, ascending
+        self._when = array("i", [0] * n)  # their sample numbers
+        self._head = 0
+        self._count = 0
+        self._k = 0  # sample number
         self._f = 0
         self._e = 0
-        self._s = 0
+        self._z = 0  # (s << 8) - slope * field, re-based now and then
         self._dir = 0
         self._over = 0
         self._anchored = False
@@ -68,6 +80,7 @@ class TrackingDetector:
         self._anchored = False
         self._dir = 0
         self._over = 0
+        self._count = 0
         self.lag = 0
         self.stalled = False
 
@@ -77,42 +90,69 @@ class TrackingDetector:
             self._anchored = True
             self._f = field
             self._e = encoder
-            self._s = 0
+            self._z = 0
             return False
         df = wrapped_diff(field, self._f)
         de = wrapped_diff(encoder, self._e)
         self._f = field
         self._e = encoder
-        s = self._s + df - de
-        self._s = s
+        z = self._z + ((df - de) << 8) - self.slope_q8 * df
         self.speed = df
         if df == 0:
+            self._z = z
             self._dir = 0
             self._over = 0
+            self._count = 0
             self.lag = 0
             self.stalled = False
             return False
-        ring = self._ring
         n = self._n
+        vals = self._vals
+        when = self._when
+        head = self._head
+        count = self._count
         d = 1 if df > 0 else -1
         if d != self._dir:
             self._dir = d
             self._over = 0
-            for k in range(n):
-                ring[k] = s
-        ring[self._i] = s
-        self._i = (self._i + 1) % n
-        ext = ring[0]
-        if d > 0:
-            for k in range(1, n):
-                if ring[k] < ext:
-                    ext = ring[k]
-            lag = s - ext
-        else:
-            for k in range(1, n):
-                if ring[k] > ext:
-                    ext = ring[k]
-            lag = ext - s
+            count = 0
+        if z > _REBASE or z < -_REBASE:  # shift the history: only differences count
+            shift = d * z
+            i = head
+            for _ in range(count):
+                vals[i] -= shift
+                i += 1
+                if i >= n:
+                    i = 0
+            z = 0
+        self._z = z
+        w = d * z
+        k = self._k + 1
+        self._k = k
+        # Samples older than the window leave at the front; candidates no better than this one
+        # leave at the back; this one joins.
+        if count and k - when[head] >= n:
+            head += 1
+            if head >= n:
+                head = 0
+            count -= 1
+        tail = head + count - 1
+        if tail >= n:
+            tail -= n
+        while count and vals[tail] >= w:
+            count -= 1
+            tail -= 1
+            if tail < 0:
+                tail = n - 1
+        tail += 1
+        if tail >= n:
+            tail = 0
+        vals[tail] = w
+        when[tail] = k
+        count += 1
+        self._head = head
+        self._count = count
+        lag = (w - vals[head]) >> 8
         allowance = (df if df > 0 else -df) * self.tau_ms // self.sample_ms
         thr = self.base + (allowance if allowance < self.cap else self.cap)
         self.lag = lag

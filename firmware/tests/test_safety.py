@@ -130,3 +130,66 @@ def test_tracking_detector_follows_free_motion_and_catches_a_blocked_rotor():
         if det.update(field & 0x3FFFFFFF, encoder) and stalled_at is None:
             stalled_at = k
     assert stalled_at is not None and stalled_at <= 4
+
+
+def _reference_lags(samples, window, slope_q8):
+    """The detector's lag by its definition, from the whole history (no queue)."""
+    lags, hist, d_prev = [], [], 0
+    s = f = 0
+    for k in range(1, len(samples)):
+        df = samples[k][0] - samples[k - 1][0]
+        s += df - (samples[k][1] - samples[k - 1][1])
+        f += df
+        if df == 0:
+            hist, d_prev = [], 0
+            lags.append(0)
+            continue
+        d = 1 if df > 0 else -1
+        if d != d_prev:
+            hist, d_prev = [], d
+        hist = (hist + [(s, f)])[-window:]
+        lags.append(max(d * ((s - si) * 256 - slope_q8 * (f - fi)) for si, fi in hist) >> 8)
+    return lags
+
+
+def test_tracking_lag_is_its_definition_through_reversals_pauses_and_wrapping_counters():
+    seed = 12345
+    field = encoder = (1 << 30) - 5000  # both counters wrap at 2**30 during the run
+    samples = [(field, encoder)]
+    for k in range(3000):
+        seed = (seed * 1103515245 + 12345) & 0x7FFFFFFF
+        phase = (k // 97) % 5  # forward, pause, backward, fast forward, blocked-ish
+        step = (300, 0, -200, 4000, 40)[phase]
+        field += step
+        encoder += step - (seed % 61) + 30 if phase != 4 else seed % 7
+        samples.append((field, encoder))
+    for window, slope in ((1, 0), (20, 0), (64, 10), (64, 200)):
+        det = TrackingDetector(1 << 20, 0, window, 64, 5, slope_q8=slope)
+        got = []
+        for f, e in samples:
+            det.update(f & 0x3FFFFFFF, e & 0x3FFFFFFF)
+            got.append(det.lag)
+        assert got[1:] == _reference_lags(samples, window, slope), (window, slope)
+
+
+def test_the_slope_allowance_passes_the_encoders_harmonic_error_and_catches_a_blocked_rotor():
+    import math
+    # 1x + 2x harmonic error of 1.9 degrees overall (270 usteps), at a slow and a fast speed.
+    def error(x):
+        return int(160 * math.sin(2 * math.pi * x / 51200) + 110 * math.sin(4 * math.pi * x / 51200 + 1))
+    for step in (43, 4900):  # usteps per 5 ms sample: 10 and 1150 rpm
+        plain = TrackingDetector(100, 0, 64, 4, 5)
+        sloped = TrackingDetector(100, 0, 64, 4, 5, slope_q8=12)
+        rotor = 0
+        plain_stalls = 0
+        for k in range(2000):
+            rotor += step
+            plain_stalls += plain.update(rotor & 0x3FFFFFFF, rotor + error(rotor))
+            assert not sloped.update(rotor & 0x3FFFFFFF, rotor + error(rotor)), (step, k)
+        assert plain_stalls, "without the slope allowance the harmonic error alone trips it"
+        field, stalled_at = rotor, None
+        for k in range(40):  # the rotor stops, the field runs on
+            field += step
+            if sloped.update(field & 0x3FFFFFFF, rotor + error(rotor)) and stalled_at is None:
+                stalled_at = k
+        assert stalled_at is not None and stalled_at <= 3 + 100 // (step - step * 12 // 256) + 1, stalled_at
