@@ -1,4 +1,4 @@
-"""`micropython.native` under both interpreters. MicroPython's compiler handles the decorator by
+"""`micropython.native` and `micropython.viper` under both interpreters. MicroPython's compiler handles the decorator by
 its name, so modules write `@micropython.native` after `from .emitters import micropython`; under
 CPython the decorator does nothing and the same files run as plain Python."""
 
@@ -8,4 +8,8 @@ except ImportError:
     class micropython:
         @staticmethod
         def native(function):
+            return function
+
+        @staticmethod
+        def viper(function):
             return function

@@ -19,12 +19,15 @@ for what grows with speed. A reversal restarts the history (the load angle does 
 through one: decelerating and accelerating the other way take torque the same way). Nothing is
 judged while the field stands still.
 
-The extreme is kept by a monotonic queue (O(1) per sample, amortized). Integer arithmetic on
-preallocated state only: inputs are counters that may wrap at 2**30; the Q8 history is re-based
-before it could leave MicroPython's small integers.
+The extreme is kept by a monotonic queue (O(1) per sample, amortized), in one viper function over
+preallocated word arrays (plain Python under CPython): inputs are counters that may wrap at 2**30;
+the Q8 history is re-based before it could leave 32 bits, and a jump no motor makes in one sample
+(a re-zeroed counter) starts the history afresh.
 """
 
 from array import array
+
+from .emitters import micropython
 
 try:
     from micropython import const
@@ -36,6 +39,40 @@ _WRAP = const(0x3FFFFFFF)
 _HALF = const(0x20000000)
 _SPAN = const(0x40000000)
 _REBASE = const(0x4000000)  # |history| in Q8 beyond which it is shifted back to 0 (2**26)
+_JUMP = const(0x40000)  # usteps per sample no motor turns: a re-zeroed counter, start afresh
+# Signed words are stored biased by 2**29: a viper ptr32 load does not sign-extend on a 64-bit
+# machine (the unix port), and every stored value stays in 0 .. 2**30.
+_BIAS = const(0x20000000)
+
+# The state array: what one sample needs, in machine words for the viper step.
+_F = const(0)  # last field, encoder
+_E = const(1)
+_Z = const(2)  # (s << 8) - slope * field, re-based now and then; biased
+_DIR = const(3)  # direction of motion + 1
+_OVER = const(4)
+_HEAD = const(5)  # the queue in the ring: first slot, length
+_COUNT = const(6)
+_K = const(7)  # sample number (30 bits)
+_ANCHORED = const(8)
+_N = const(9)  # window, samples
+_BASE = const(10)
+_TAU_Q8 = const(11)  # tau_ms / sample_ms, Q8
+_ADF_MAX = const(12)  # the largest |df| whose allowance cannot overflow
+_CAP = const(13)
+_SLOPE = const(14)
+_CONFIRM = const(15)
+_LAG = const(16)  # trace of the last sample
+_THR = const(17)
+_SPEED = const(18)  # biased
+_STALLED = const(19)
+_IN_F = const(20)  # this sample's inputs
+_IN_E = const(21)
+_WORDS = const(22)
+
+try:
+    ptr32  # noqa: B018 -- a viper type, known to MicroPython's compiler only
+except NameError:
+    ptr32 = None
 
 
 def wrapped_diff(a, b):
@@ -44,122 +81,170 @@ def wrapped_diff(a, b):
     return d - _SPAN if d >= _HALF else d
 
 
+@micropython.viper
+def _step(st: ptr32, ring: ptr32) -> int:
+    """One sample (st[_IN_F], st[_IN_E]) through the detector; 1 once stalled. `ring` holds the
+    queue as (d * z, biased; sample number) pairs."""
+    field = st[_IN_F]
+    encoder = st[_IN_E]
+    if st[_ANCHORED] == 0:
+        st[_ANCHORED] = 1
+        st[_F] = field
+        st[_E] = encoder
+        st[_Z] = _BIAS
+        return 0
+    df = (field - st[_F]) & _WRAP
+    if df >= _HALF:
+        df = df - _HALF - _HALF  # 2**30 is no small int on the chip
+    de = (encoder - st[_E]) & _WRAP
+    if de >= _HALF:
+        de = de - _HALF - _HALF
+    st[_F] = field
+    st[_E] = encoder
+    st[_SPEED] = df + _BIAS
+    st[_LAG] = 0
+    st[_STALLED] = 0
+    if df > _JUMP or -df > _JUMP or de > _JUMP or -de > _JUMP:  # not a motion: start afresh
+        st[_Z] = _BIAS
+        st[_DIR] = 1
+        st[_OVER] = 0
+        st[_COUNT] = 0
+        return 0
+    z = st[_Z] - _BIAS + ((df - de) << 8) - st[_SLOPE] * df
+    if df == 0:
+        if z > _REBASE or -z > _REBASE:
+            z = 0  # no history to keep
+        st[_Z] = z + _BIAS
+        st[_DIR] = 1
+        st[_OVER] = 0
+        st[_COUNT] = 0
+        return 0
+    n = st[_N]
+    head = st[_HEAD]
+    count = st[_COUNT]
+    d = 1
+    if df < 0:
+        d = -1
+    if d + 1 != st[_DIR]:
+        st[_DIR] = d + 1
+        st[_OVER] = 0
+        count = 0
+    if z > _REBASE or -z > _REBASE:  # shift the history: only differences count
+        shift = d * z
+        i = head
+        j = 0
+        while j < count:
+            ring[2 * i] = ring[2 * i] - shift
+            i += 1
+            if i >= n:
+                i = 0
+            j += 1
+        z = 0
+    st[_Z] = z + _BIAS
+    w = d * z + _BIAS
+    k = (st[_K] + 1) & _WRAP
+    st[_K] = k
+    # Samples older than the window leave at the front; candidates no better than this one
+    # leave at the back; this one joins.
+    if count > 0 and ((k - ring[2 * head + 1]) & _WRAP) >= n:
+        head += 1
+        if head >= n:
+            head = 0
+        count -= 1
+    tail = head + count - 1
+    if tail >= n:
+        tail -= n
+    while count > 0 and ring[2 * tail] >= w:
+        count -= 1
+        tail -= 1
+        if tail < 0:
+            tail = n - 1
+    tail += 1
+    if tail >= n:
+        tail = 0
+    ring[2 * tail] = w
+    ring[2 * tail + 1] = k
+    count += 1
+    st[_HEAD] = head
+    st[_COUNT] = count
+    lag = (w - ring[2 * head]) >> 8
+    adf = df
+    if df < 0:
+        adf = -df
+    thr = st[_CAP]
+    if adf <= st[_ADF_MAX]:
+        allowance = (adf * st[_TAU_Q8]) >> 8
+        if allowance < thr:
+            thr = allowance
+    thr += st[_BASE]
+    st[_LAG] = lag
+    st[_THR] = thr
+    over = 0
+    if lag > thr:
+        over = st[_OVER] + 1
+    st[_OVER] = over
+    if over >= st[_CONFIRM]:
+        st[_STALLED] = 1
+        return 1
+    return 0
+
+
 class TrackingDetector:
     """base, cap: usteps; tau_ms: speed allowance in ms of field travel; window, confirm:
     samples; sample_ms: the sampling period the caller keeps (used for the speed allowance);
     slope_q8: the encoder error allowed per ustep of travel, /256."""
 
     def __init__(self, base, tau_ms, window, confirm, sample_ms, cap=1 << 28, slope_q8=0):
+        n = max(1, int(window))
+        st = array("i", [0] * _WORDS)
+        tau_q8 = int(tau_ms) * 256 // max(1, int(sample_ms))
+        st[_N] = n
+        st[_BASE] = int(base)
+        st[_TAU_Q8] = tau_q8
+        st[_ADF_MAX] = _WRAP // max(1, tau_q8)
+        st[_CAP] = min(int(cap), _WRAP - int(base))
+        st[_SLOPE] = int(slope_q8)
+        st[_CONFIRM] = int(confirm)
+        st[_DIR] = 1
+        st[_Z] = st[_SPEED] = _BIAS
+        self._st = st
+        self._ring = array("i", [0] * (2 * n))
         self.base = int(base)
         self.tau_ms = int(tau_ms)
-        self.cap = int(cap)
         self.sample_ms = int(sample_ms)
         self.confirm = int(confirm)
         self.slope_q8 = int(slope_q8)
-        n = max(1, int(window))
-        self._n = n
-        self._vals = array("i", [0] * n)  # the queue: d * z of candidate extremes, ascending
-        self._when = array("i", [0] * n)  # their sample numbers
-        self._head = 0
-        self._count = 0
-        self._k = 0  # sample number
-        self._f = 0
-        self._e = 0
-        self._z = 0  # (s << 8) - slope * field, re-based now and then
-        self._dir = 0
-        self._over = 0
-        self._anchored = False
-        # Trace of the last sample (usteps).
-        self.lag = 0
-        self.threshold = 0
-        self.speed = 0  # field travel in the last sample
-        self.stalled = False
+
+    @property
+    def lag(self):
+        """Trace of the last sample: the lag, the threshold and the field travel (usteps)."""
+        return self._st[_LAG]
+
+    @property
+    def threshold(self):
+        return self._st[_THR]
+
+    @property
+    def speed(self):
+        return self._st[_SPEED] - _BIAS
+
+    @property
+    def stalled(self):
+        return self._st[_STALLED] != 0
 
     def reset(self):
         """Forget the history (after a stop, a re-arm or an encoder re-zero)."""
-        self._anchored = False
-        self._dir = 0
-        self._over = 0
-        self._count = 0
-        self.lag = 0
-        self.stalled = False
+        st = self._st
+        st[_ANCHORED] = 0
+        st[_DIR] = 1
+        st[_OVER] = 0
+        st[_COUNT] = 0
+        st[_LAG] = 0
+        st[_STALLED] = 0
 
     def update(self, field, encoder):
         """Feed one sample; True once the encoder has not followed for `confirm` samples."""
-        if not self._anchored:
-            self._anchored = True
-            self._f = field
-            self._e = encoder
-            self._z = 0
-            return False
-        df = wrapped_diff(field, self._f)
-        de = wrapped_diff(encoder, self._e)
-        self._f = field
-        self._e = encoder
-        z = self._z + ((df - de) << 8) - self.slope_q8 * df
-        self.speed = df
-        if df == 0:
-            self._z = z
-            self._dir = 0
-            self._over = 0
-            self._count = 0
-            self.lag = 0
-            self.stalled = False
-            return False
-        n = self._n
-        vals = self._vals
-        when = self._when
-        head = self._head
-        count = self._count
-        d = 1 if df > 0 else -1
-        if d != self._dir:
-            self._dir = d
-            self._over = 0
-            count = 0
-        if z > _REBASE or z < -_REBASE:  # shift the history: only differences count
-            shift = d * z
-            i = head
-            for _ in range(count):
-                vals[i] -= shift
-                i += 1
-                if i >= n:
-                    i = 0
-            z = 0
-        self._z = z
-        w = d * z
-        k = self._k + 1
-        self._k = k
-        # Samples older than the window leave at the front; candidates no better than this one
-        # leave at the back; this one joins.
-        if count and k - when[head] >= n:
-            head += 1
-            if head >= n:
-                head = 0
-            count -= 1
-        tail = head + count - 1
-        if tail >= n:
-            tail -= n
-        while count and vals[tail] >= w:
-            count -= 1
-            tail -= 1
-            if tail < 0:
-                tail = n - 1
-        tail += 1
-        if tail >= n:
-            tail = 0
-        vals[tail] = w
-        when[tail] = k
-        count += 1
-        self._head = head
-        self._count = count
-        lag = (w - vals[head]) >> 8
-        allowance = (df if df > 0 else -df) * self.tau_ms // self.sample_ms
-        thr = self.base + (allowance if allowance < self.cap else self.cap)
-        self.lag = lag
-        self.threshold = thr
-        if lag > thr:
-            self._over += 1
-        else:
-            self._over = 0
-        self.stalled = self._over >= self.confirm
-        return self.stalled
+        st = self._st
+        st[_IN_F] = field & _WRAP  # the differences are taken modulo 2**30 anyway
+        st[_IN_E] = encoder & _WRAP
+        return _step(st, self._ring) != 0
