@@ -75,3 +75,20 @@ def test_an_escape_is_counted_when_the_rotor_keeps_turning() -> None:
                               (S.Deadman("J1", "velocity", "ours"), {"escape": False, "stop_start_ms": 52.0})],
                              ["original"]))
     assert figures["safety.deadman_escapes"] == 1 and figures["safety.deadman_stop_start_ms_max"] == 52.0
+
+
+def test_the_tracking_detector_stops_a_slow_rigid_collision_right_after_the_motor_is_overpowered(reduced) -> None:
+    results, available = reduced
+    if "tracking" not in available:
+        pytest.skip("no tracking detector in this firmware")
+    r = _result(results, S.Collision("J1", 10.0, "rigid", False, "harsh", "tracking"))
+    assert r["detected"] and r["latency_ms"] <= 250.0, r
+    assert r["slip_ms"] == r["slip_ms"] and r["latency_ms"] - r["slip_ms"] <= 50.0, r
+
+
+def test_a_homing_sensitivity_within_the_noise_floor_counts_as_refused_not_failed(reduced) -> None:
+    results, _ = reduced
+    r = _result(results, S.Homing("J1", False, "harsh", "rigid", sensitivity=15))
+    assert r["refused"] and r["success"] and not r["false_homed"], r
+    figures = dict(S.figures(results, ["original"]))
+    assert figures["safety.homing_refused"] == 1
