@@ -370,10 +370,12 @@ def deadman(s: Deadman) -> dict:
     start = [None]
 
     def watch() -> bool:
+        m.update()  # the driver's ramp is its own (TMC5130): read it now, not at the next main loop
         if start[0] is None and abs(m.driver_rpm()) < v0 - 0.2:
             start[0] = rig.clock.now_us
         return False
-    rig.run(2.5, poll_s=None, until=watch)
+    rig.run(0.1, poll_s=None, step_s=0.0001, until=watch)  # the stop start to 0.1 ms
+    rig.run(2.4, poll_s=None, until=watch)
     a = m.rotor_angle()
     rig.run(0.5, poll_s=None)
     moving = abs(m.rotor_angle() - a) > 1.0
