@@ -219,6 +219,7 @@ def collision(s: Collision) -> dict:
     slips = m.slipped_periods()
 
     def done() -> bool:
+        m.update()  # the mechanics up to now (the simulator integrates lazily, at main-loop ticks)
         if contact[0] is None and m.load_angle() >= wall:
             contact[0] = rig.clock.now_us
         if contact[0] is not None and slip[0] is None and m.slipped_periods() != slips:
