@@ -8,10 +8,10 @@ reversals, position moves at top speed, a streamed trajectory -- with nominal an
 noise and the Pico backend's AS5600 (the shipped configs drive a Pico), without and with the
 joint's payload corner, on seeds the benchmark does not use, and record every sample the
 firmware's detector is fed (field and encoder usteps). Then replay the recording through the
-detector for each slope (0..SLOPE_MAX/256) and tau (0..20 ms): base and cap cover MARGIN x every
-lag seen held over CONFIRM samples in a row, and the pair kept is the one that detects a blocked
-rotor soonest at 10 and 30 rpm (threshold / (1 - slope): the lag of a blocked rotor grows by
-1 - slope per ustep of field). Phases in which the motor really lost position are reported and left
+detector for each slope (0..SLOPE_MAX/256), confirm (CONFIRMS samples) and tau (0..20 ms): base and
+cap cover MARGIN x every lag seen held over `confirm` samples in a row, and the set kept is the one
+that detects a blocked rotor soonest at 10 and 30 rpm (the lag of a blocked rotor grows by
+1 - slope per ustep of field, then `confirm` samples). Phases in which the motor really lost position are reported and left
 out (the detector is right to stop those).
 
 Quick stop: the largest deceleration (full steps/s^2, at most the driver's 11636) from which the
@@ -51,7 +51,7 @@ MARGIN = 2.0
 SATURATE = False  # cap the speed allowance at the largest lag seen (lower thresholds, less margin)
 MIN_BASE = 128  # half a full step: room for what the simulator leaves out (detent torque ripple)
 SAMPLE_MS = 5
-CONFIRM = 4
+CONFIRMS = (2, 3, 4)  # samples in a row over the threshold: the search's choices
 WINDOW = 64  # samples: at 10 rpm the lag can grow by 2700 usteps within it
 SLOPE_MAX = 32  # /256 usteps of encoder error per ustep of travel (the datasheet harmonics need ~10)
 DRIVER_MAX_DECEL = 11636.0
@@ -61,7 +61,7 @@ class _Recorder(TrackingDetector):
     """The firmware's detector, never stopping, keeping what it is fed (None: a reset)."""
 
     def __init__(self):
-        super().__init__(10 ** 8, 0, WINDOW, CONFIRM, SAMPLE_MS)
+        super().__init__(10 ** 8, 0, WINDOW, 1, SAMPLE_MS)
         self.fed = []
 
     def update(self, field, encoder):
@@ -137,8 +137,8 @@ def free_motion(joint, noise, seed, payload_kg=0.0):
     return rig.joint.core.track.fed, phases
 
 
-def replay(runs, slope):
-    """(lag, |field usteps per sample|) of every run of CONFIRM samples in a row of the free phases
+def replay(runs, slope, confirm):
+    """(lag, |field usteps per sample|) of every run of `confirm` samples in a row of the free phases
     with which the detector with `slope` could trip, by its smallest lag and speed (it trips only
     if all of them are over the threshold; ringing of the transmission cannot make them all high).
     Each recording replays in one piece, as the firmware ran it."""
@@ -147,7 +147,7 @@ def replay(runs, slope):
         free = bytearray(len(fed))
         for first, end in phases:
             free[first:end] = b"\x01" * (end - first)
-        det = TrackingDetector(10 ** 8, 0, WINDOW, CONFIRM, SAMPLE_MS, slope_q8=slope)
+        det = TrackingDetector(10 ** 8, 0, WINDOW, confirm, SAMPLE_MS, slope_q8=slope)
         seen = []
         for i, sample in enumerate(fed):
             if sample is None:
@@ -159,27 +159,33 @@ def replay(runs, slope):
                 seen.append((det.lag, abs(det.speed)))
             else:
                 seen = []
-            if len(seen) >= CONFIRM:
-                run = seen[-CONFIRM:]
+            if len(seen) >= confirm:
+                run = seen[-confirm:]
                 out.append((min(lag for lag, _ in run), min(speed for _, speed in run)))
     return out
 
 
 def fit(runs):
-    """(base, tau_ms, cap, slope_q8) detecting a blocked rotor soonest at 10 and 30 rpm while
-    covering MARGIN x every free sample: for each slope and tau, base is what the slow samples need
-    beyond their speed allowance, cap what the largest lag needs beyond base."""
+    """(base, tau_ms, cap, slope_q8, confirm, largest free lag) detecting a blocked rotor soonest at
+    10 and 30 rpm while covering MARGIN x every free sample: for each slope, confirm and tau, base is
+    what the slow samples need beyond their speed allowance, cap what the largest lag needs beyond
+    base; the time to detect is the samples the lag of a blocked rotor, growing by (1 - slope) x the
+    field's travel per sample, takes to pass the threshold, plus `confirm` samples."""
     best = None
-    for slope in range(0, SLOPE_MAX + 1, 2):
-        samples = replay(runs, slope)
-        worst = max(MARGIN * lag for lag, _ in samples)
-        for tau in range(0, 21):
-            base = max(MIN_BASE, max(int(MARGIN * lag - speed * tau / SAMPLE_MS) + 1 for lag, speed in samples))
-            cap = max(0, int(worst - base) + 1) if SATURATE else 1000000
-            cost = sum((base + min(cap, (rpm * 51200 / 60.0 * SAMPLE_MS / 1000.0) * tau / SAMPLE_MS))
-                       / (1.0 - slope / 256.0) for rpm in (10.0, 30.0))
-            if best is None or cost < best[0]:
-                best = (cost, base, tau, cap, slope, worst / MARGIN)
+    for confirm in CONFIRMS:
+        for slope in range(0, SLOPE_MAX + 1, 2):
+            samples = replay(runs, slope, confirm)
+            worst = max(MARGIN * lag for lag, _ in samples)
+            for tau in range(0, 21):
+                base = max(MIN_BASE, max(int(MARGIN * lag - speed * tau / SAMPLE_MS) + 1 for lag, speed in samples))
+                cap = max(0, int(worst - base) + 1) if SATURATE else 1000000
+                cost = 0.0
+                for rpm in (10.0, 30.0):
+                    per_sample = rpm * 51200 / 60.0 * SAMPLE_MS / 1000.0
+                    threshold = base + min(cap, per_sample * tau / SAMPLE_MS)
+                    cost += threshold / ((1.0 - slope / 256.0) * per_sample) + confirm
+                if best is None or cost < best[0]:
+                    best = (cost, base, tau, cap, slope, confirm, worst / MARGIN)
     return best[1:]
 
 
@@ -207,13 +213,13 @@ def main(argv):
     for joint in JOINTS:
         runs = [free_motion(joint, noise, seed, payload) for noise in ("nominal", "harsh", "as5600")
                 for seed in SEEDS for payload in (0.0, PAYLOAD[joint])]
-        base, tau, cap, slope, worst = fit(runs)
+        base, tau, cap, slope, confirm, worst = fit(runs)
         decel = stop_deceleration(joint)
         results[joint] = {"track_base": base, "track_tau_ms": tau, "track_cap": cap, "track_slope_q8": slope,
-                          "stop_deceleration": float(decel)}
+                          "track_confirm": confirm, "stop_deceleration": float(decel)}
         print("%s: %d free phases, largest free lag %d usteps net of the slope -> track_base %d, track_tau_ms %d, "
-              "track_cap %d, track_slope_q8 %d; stop_deceleration %d full steps/s^2"
-              % (joint, sum(len(p) for _, p in runs), worst, base, tau, cap, slope, decel))
+              "track_cap %d, track_slope_q8 %d, track_confirm %d; stop_deceleration %d full steps/s^2"
+              % (joint, sum(len(p) for _, p in runs), worst, base, tau, cap, slope, confirm, decel))
     for joint in JOINTS:
         lost = [phase for j, phase in LOSSES if j == joint]
         if lost:
@@ -227,7 +233,7 @@ def main(argv):
             cfg["stop_deceleration"] = values["stop_deceleration"]
             for key in ("track_base", "track_tau_ms", "track_cap", "track_slope_q8"):
                 cfg["stall"][key] = values[key]
-            cfg["stall"]["track_confirm"] = CONFIRM
+            cfg["stall"]["track_confirm"] = values["track_confirm"]
             cfg["stall"]["track_window"] = WINDOW
             cfg["stall"]["track_sample_ms"] = SAMPLE_MS
             tmp = path + ".tmp"
