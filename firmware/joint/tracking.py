@@ -233,8 +233,11 @@ class TrackingDetector:
         return self._st[_STALLED] != 0
 
     def reset(self):
-        """Forget the history (after a stop, a re-arm or an encoder re-zero)."""
+        """Forget the history (after a stop, a re-arm or an encoder re-zero). Cheap when there is
+        none: the main loop calls it every sample while the detector is off."""
         st = self._st
+        if st[_ANCHORED] == 0:  # nothing fed since the last reset
+            return
         st[_ANCHORED] = 0
         st[_DIR] = 1
         st[_OVER] = 0
