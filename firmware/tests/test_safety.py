@@ -193,3 +193,89 @@ def test_the_slope_allowance_passes_the_encoders_harmonic_error_and_catches_a_bl
             if sloped.update(field & 0x3FFFFFFF, rotor + error(rotor)) and stalled_at is None:
                 stalled_at = k
         assert stalled_at is not None and stalled_at <= 3 + 100 // (step - step * 12 // 256) + 1, stalled_at
+
+
+# ---- on the shipped configurations and the simulated arm's mechanics ----
+
+# The arm's configured motion on the motor side (host default.toml): top speed rpm, acceleration
+# motor deg/s^2, drive current %.
+MOTION = {"J1": (334.0, 4011.0, 20), "J2": (450.0, 18000.0, 40), "J3": (1146.0, 19251.0, 20),
+          "J4": (1146.0, 20626.0, 20)}
+
+
+class ArmJoint:
+    """One joint on its shipped configs/Jn.json, on the arm's mechanics, polled like a host."""
+
+    def __init__(self, joint, payload_kg=0.0, safe_action=None):
+        from joint import config
+        from joint.sim import mechanics
+        from joint.sim.bus import SimJointBus
+        from joint.sim.clock import VirtualClock
+        from joint.sim.joint import SimJoint
+        from joint.sim.stepper import SimStepper
+        cfg = config.load("firmware/joint/configs/%s.json" % joint)
+        assert cfg.valid, cfg.errors
+        cfg.motor = {"backend": "sim"}
+        if safe_action is not None:
+            cfg.safe_action = safe_action
+        self.clock = VirtualClock()
+        self.stepper = SimStepper(self.clock, seed=5, **mechanics.stepper_kwargs(joint, payload_kg))
+        self.joint = SimJoint(cfg, self.clock, self.stepper, write=lambda line: None)
+        self.bus = SimJointBus(self.clock, (self.joint,))
+        self.addr = cfg.address
+        assert self.bus.boot()
+        top, accel, current = MOTION[joint]
+        self.top = top
+        self.command("SETUP", current, current, 0, 0)
+        self.command("SETMAXACCELERATION", accel)
+        self.command("SETMAXVELOCITY", top * 6.0)
+
+    def command(self, name, *values):
+        reg = P.register(name)
+        return self.bus.transfer(self.addr, bytes([reg.addr]) + reg.encode(*values), 1)[0]
+
+    def poll(self, seconds):
+        for _ in range(int(seconds / 0.01)):
+            self.bus.sleep(0.01)
+            self.bus.transfer(self.addr, bytes([P.PING]), 2)
+
+
+def test_the_deadman_stops_every_joint_from_top_speed_at_its_quick_stop_rate_without_losing_position():
+    for joint in ("J1", "J2", "J3", "J4"):
+        arm = ArmJoint(joint)
+        arm.command("WATCHDOG", 50)
+        arm.command("SETRPM", arm.top)
+        arm.poll(0.5 + arm.top * 6.0 / MOTION[joint][1])
+        m = arm.stepper
+        slips, start = m.slipped_periods(), m.rotor_angle()
+        arm.bus.sleep(1.0)  # the host falls silent
+        assert m.driver_rpm() == 0 and arm.joint.core.flags & NOTENABLED, joint
+        assert m.slipped_periods() == slips, "%s lost position in the quick stop" % joint
+        v = arm.top * 6.0  # deg/s
+        decel = arm.joint.cfg.stop_deceleration * 1.8  # full steps/s^2 -> deg/s^2
+        late = (50 + 1 + arm.bus.chip.loop_us / 1000.0 + arm.bus.chip.gc_pause_us / 1000.0) / 1000.0
+        bound = v * late + v * v / (2 * decel)  # on at full speed until the stop starts, then braking
+        assert abs(m.rotor_angle() - start) <= 1.02 * bound, (joint, m.rotor_angle() - start, bound)
+
+
+def test_after_a_deadman_stop_the_safe_action_holds_or_lets_go_of_a_loaded_j2():
+    drift = {}
+    for action in ("hold", "freewheel"):
+        arm = ArmJoint("J2", payload_kg=1.0, safe_action=action)  # a payload that back-drives the screw
+        arm.command("WATCHDOG", 50)
+        arm.command("SETRPM", -30.0)
+        arm.poll(0.5)
+        arm.bus.sleep(0.3)  # silence: the quick stop, then the safe action
+        stopped = arm.stepper.load_angle()
+        arm.bus.sleep(1.0)
+        drift[action] = abs(arm.stepper.load_angle() - stopped)
+    assert drift["hold"] < 5.0 and drift["freewheel"] > 90.0, drift
+
+
+def test_a_loaded_j2_does_not_fall_while_a_homing_starts():
+    arm = ArmJoint("J2", payload_kg=1.0)
+    arm.poll(0.2)
+    before = arm.stepper.load_angle()
+    arm.command("HOME", 0, 45, 50, 30)
+    arm.poll(0.4)  # within the homing's settle, before it drives
+    assert abs(arm.stepper.load_angle() - before) < 5.0, arm.stepper.load_angle() - before
