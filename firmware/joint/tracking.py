@@ -40,8 +40,8 @@ _HALF = const(0x20000000)
 _SPAN = const(0x40000000)
 _REBASE = const(0x4000000)  # |history| in Q8 beyond which it is shifted back to 0 (2**26)
 _JUMP = const(0x40000)  # usteps per sample no motor turns: a re-zeroed counter, start afresh
-# Signed words are stored biased by 2**29: a viper ptr32 load does not sign-extend on a 64-bit
-# machine (the unix port), and every stored value stays in 0 .. 2**30.
+# Signed words are stored biased by 2**29 (= _HALF): a viper ptr32 load does not sign-extend on a
+# 64-bit machine (the unix port), and every stored value stays in 0 .. 2**30.
 _BIAS = const(0x20000000)
 
 # The state array: what one sample needs, in machine words for the viper step.
@@ -67,7 +67,9 @@ _SPEED = const(18)  # biased
 _STALLED = const(19)
 _IN_F = const(20)  # this sample's inputs
 _IN_E = const(21)
-_WORDS = const(22)
+_WRAP_W = const(22)  # _WRAP, _HALF
+_HALF_W = const(23)
+_WORDS = const(24)
 
 try:
     ptr32  # noqa: B018 -- a viper type, known to MicroPython's compiler only
@@ -85,36 +87,38 @@ def wrapped_diff(a, b):
 def _step(st: ptr32, ring: ptr32) -> int:
     """One sample (st[_IN_F], st[_IN_E]) through the detector; 1 once stalled. `ring` holds the
     queue as (d * z, biased; sample number) pairs."""
+    wrap = st[_WRAP_W]  # 2**30 - 1 and 2**29 are no small ints on every board: words
+    half = st[_HALF_W]  # (also the bias of the signed words)
     field = st[_IN_F]
     encoder = st[_IN_E]
     if st[_ANCHORED] == 0:
         st[_ANCHORED] = 1
         st[_F] = field
         st[_E] = encoder
-        st[_Z] = _BIAS
+        st[_Z] = half
         return 0
-    df = (field - st[_F]) & _WRAP
-    if df >= _HALF:
-        df = df - _HALF - _HALF  # 2**30 is no small int on the chip
-    de = (encoder - st[_E]) & _WRAP
-    if de >= _HALF:
-        de = de - _HALF - _HALF
+    df = (field - st[_F]) & wrap
+    if df >= half:
+        df = df - half - half
+    de = (encoder - st[_E]) & wrap
+    if de >= half:
+        de = de - half - half
     st[_F] = field
     st[_E] = encoder
-    st[_SPEED] = df + _BIAS
+    st[_SPEED] = df + half
     st[_LAG] = 0
     st[_STALLED] = 0
     if df > _JUMP or -df > _JUMP or de > _JUMP or -de > _JUMP:  # not a motion: start afresh
-        st[_Z] = _BIAS
+        st[_Z] = half
         st[_DIR] = 1
         st[_OVER] = 0
         st[_COUNT] = 0
         return 0
-    z = st[_Z] - _BIAS + ((df - de) << 8) - st[_SLOPE] * df
+    z = st[_Z] - half + ((df - de) << 8) - st[_SLOPE] * df
     if df == 0:
         if z > _REBASE or -z > _REBASE:
             z = 0  # no history to keep
-        st[_Z] = z + _BIAS
+        st[_Z] = z + half
         st[_DIR] = 1
         st[_OVER] = 0
         st[_COUNT] = 0
@@ -140,13 +144,13 @@ def _step(st: ptr32, ring: ptr32) -> int:
                 i = 0
             j += 1
         z = 0
-    st[_Z] = z + _BIAS
-    w = d * z + _BIAS
-    k = (st[_K] + 1) & _WRAP
+    st[_Z] = z + half
+    w = d * z + half
+    k = (st[_K] + 1) & wrap
     st[_K] = k
     # Samples older than the window leave at the front; candidates no better than this one
     # leave at the back; this one joins.
-    if count > 0 and ((k - ring[2 * head + 1]) & _WRAP) >= n:
+    if count > 0 and ((k - ring[2 * head + 1]) & wrap) >= n:
         head += 1
         if head >= n:
             head = 0
@@ -207,6 +211,8 @@ class TrackingDetector:
         st[_CONFIRM] = int(confirm)
         st[_DIR] = 1
         st[_Z] = st[_SPEED] = _BIAS
+        st[_WRAP_W] = _WRAP
+        st[_HALF_W] = _HALF
         self._st = st
         self._ring = array("i", [0] * (2 * n))
         self.base = int(base)
