@@ -23,7 +23,7 @@ the arm's mechanics, firmware.sim.mechanics, and the shipped J1-J4 configuration
   host's frames and with our host's watchdog (WATCHDOG register, when the firmware has it). An
   escape: the rotor still turns 3 s after the last frame where the joint must stop (velocity modes
   always; every mode once a watchdog is set). Stop start: last frame to the first drop of the
-  driver's speed.
+  driver's ramp speed, read every 0.1 ms.
 
 Detector selection: `JointController.set_stall_detector(mode)` when the firmware has it, else the
 per-joint config key stall.detector; a firmware with neither has only "original" (safety.* = nan).
