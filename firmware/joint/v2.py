@@ -132,7 +132,7 @@ class MemLink:
         # before the RX data that came with it, so a mailbox byte still in the FIFO then (the
         # I2C IRQ held off for a bit time at the end of a write) is stored at offset 0 and the
         # read starts past the state block's first byte (chip/README.md). A transaction that
-        # starts inside the short section below is still in its address byte when it ends.
+        # starts during the short section below is still far from the end of its write then.
         if self._bus_active():
             return -1
         state = self._irq_off()
