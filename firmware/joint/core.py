@@ -149,5 +149,11 @@ class JointController(IrqPath, MainLoop, Handlers, Tasks, Supervisor):
         else:
             self._start_task("boot", self._boot())
 
+    def set_critical(self, critical):
+        """The (disable, enable) interrupt pair guarding state shared with the IRQ path; None:
+        nothing to guard (protocol v2: no Python IRQ, and the I2C interrupt must never be held
+        off while a transaction is in progress, see ProtocolSwitch)."""
+        self._irq_off, self._irq_on = critical or (_no_irq_off, _no_irq_on)
+
     def _select_protocol(self, q, off):
         self.protocol_request = q[off]

@@ -6,16 +6,19 @@ the switch between the legacy register map and v2.
 
 1. packs the next state block into a staging buffer (integers only: the position and velocity are
    the legacy ANGLEMOVED / GETENCODERRPM reply caches, converted from their float32 bits);
-2. swaps, in one short critical section and only while no transaction is in progress (the
-   peripheral's activity bit): takes the mailbox out and marks it empty, notes whether the host
-   wrote past it into the state block, and publishes the staged block. A read therefore always
-   sees one whole block, and the mailbox is never taken half-written;
+2. swaps, in one short critical section entered only while no transaction is in progress (the
+   peripheral's activity bit, checked before and inside it: interrupts held off across the end
+   of a write phase shift the rp2 transfer): takes the mailbox out and marks it empty, notes
+   whether the host wrote past it into the state block, and publishes the staged block. A read
+   therefore always sees one whole block, and the mailbox is never taken half-written;
 3. judges the frame it took: framing, CRC, sequence number, then the legacy register's own checks
    through the core (`on_frame`), exactly as a legacy write of that register would be judged. The
    verdict and the new `ack` go out with the next swap, in the same poll.
 
 Allocation-free once constructed (tests run it with the heap locked under MicroPython).
 """
+
+import gc
 
 from . import protocol as P
 from . import protocol_v2 as V
@@ -31,6 +34,7 @@ except ImportError:
 
 _EMPTY_CMD = const(0xFF)  # no register 0xFF: a mailbox the host has not written since the swap
 _EMPTY_SEQ = const(0x80)  # bit 7 set: never a sequence number the host sends
+_ROOM = const(16384)  # bytes free before a protocol switch (its allocations take about 1 KB)
 
 
 def f32_to_fixed(buf, off, q, limit):
@@ -124,6 +128,13 @@ class MemLink:
 
     def _swap(self):
         """-1: bus busy; 0: published, no frame; 1: frame taken; 2: frame taken, host overflowed."""
+        # Interrupts go off only while the bus is idle: the rp2 driver handles a repeated START
+        # before the RX data that came with it, so a mailbox byte still in the FIFO then (the
+        # I2C IRQ held off for a bit time at the end of a write) is stored at offset 0 and the
+        # read starts past the state block's first byte (chip/README.md). A transaction that
+        # starts during the short section below is still far from the end of its write then.
+        if self._bus_active():
+            return -1
         state = self._irq_off()
         if self._bus_active():
             self._irq_on(state)
@@ -210,11 +221,21 @@ class MemLink:
         out[V.S_CRC - V.STATE] = V.state_crc(out, 0, self._address)
 
 
+def _make_room():
+    """Collect garbage now if the heap is nearly full (MicroPython), so that re-creating the I2C
+    target and its handler does not trigger a collection while the joint is off the bus."""
+    mem_free = getattr(gc, "mem_free", None)
+    if mem_free is not None and mem_free() < _ROOM:
+        gc.collect()
+
+
 class ProtocolSwitch:
     """Which map the joint serves. It boots legacy (the original host works unchanged); the
     legacy PROTOCOL register (2) moves it to v2; the v2 PROTOCOL command (1) or `SILENCE_MS`
-    without a write from the host moves it back. The switch happens in the main loop; back to
-    legacy only after the host's next transaction (it has read the command's verdict by then).
+    without a write from the host moves it back. The switch happens in the main loop, never while
+    a transaction is in progress; back to legacy only once the host's next transaction has ended
+    (it has read the command's verdict by then). While v2 is served the core runs without
+    critical sections (`set_critical(None)`): nothing in an IRQ shares its state then.
 
     `make_target(mem)` creates the `I2CTarget` (mem None: the legacy IRQ target; else the v2
     memory with `mem_addrsize=0`), `legacy_adapter(target)` the legacy IRQ path on it, and
@@ -234,6 +255,7 @@ class ProtocolSwitch:
         self.switches = 0
         self.link = None
         self.target = make_target(None)
+        self._bus_active = bus_active_for(self.target)
         self.adapter = legacy_adapter(self.target)
 
     def service(self):
@@ -246,16 +268,18 @@ class ProtocolSwitch:
                 self._request = request
                 self._request_writes = self.link.applied_writes if self.link is not None else -1
         link = self.link
-        if self._request and (link is None or link.writes != self._request_writes):
+        # Never while a transaction is in progress: re-creating the target cuts it off.
+        if (self._request and (link is None or link.writes != self._request_writes)
+                and not self._bus_active()):
             # A v2 joint keeps its map until a transaction after the one that carried the
-            # command: the host reads the verdict there, and a legacy write before the switch
-            # would only overwrite the mailbox.
+            # command has ended: the host reads the verdict there, and a legacy write before
+            # the switch would only overwrite the mailbox.
             self._switch(self._request)
             link = self.link
         if link is not None:
             link.poll()
             silent = core.clock.ticks_diff(core.clock.ticks_ms(), link.last_write_ms)
-            if silent > V.SILENCE_MS:
+            if silent > V.SILENCE_MS and not self._bus_active():
                 core.log.warn("v2 host silent for %d ms: serving the legacy map" % silent)
                 self._switch(V.PROTOCOL_LEGACY)
 
@@ -269,14 +293,23 @@ class ProtocolSwitch:
         self.target.deinit()
 
     def _switch(self, protocol):
+        # Allocate while the old target still serves: a garbage collection between leaving the
+        # bus and joining it again (tens of ms on the chip) would NAK the host meanwhile.
+        link = MemLink(self._core, self._address, self._critical) if protocol == V.PROTOCOL_V2 else None
+        _make_room()
         self._leave()
-        if protocol == V.PROTOCOL_V2:
-            link = MemLink(self._core, self._address, self._critical)
+        if link is not None:
+            # No Python IRQ shares the core's state in v2, and an interrupt held off at the end
+            # of a write phase shifts the mem-mode transfer (MemLink._swap): no critical sections.
+            self._core.set_critical(None)
             self.target = self._make_target(link.mem)
-            link.attach(self.target, self._bus_active_for(self.target))
+            self._bus_active = self._bus_active_for(self.target)
+            link.attach(self.target, self._bus_active)
             self.link = link
         else:
+            self._core.set_critical(self._critical)
             self.target = self._make_target(None)
+            self._bus_active = self._bus_active_for(self.target)
             self.adapter = self._legacy_adapter(self.target)
         self.protocol = protocol
         self._request = 0

@@ -27,7 +27,9 @@ def _activity(target):
 
 
 class V2Rig:
-    def __init__(self, port="rp2"):
+    """`critical`: the (disable, enable) interrupt pair given to the core and the switch."""
+
+    def __init__(self, port="rp2", critical=None):
         self.clock = VirtualClock()
         self.motor = RecordingMotor()
         self.lines = []
@@ -35,12 +37,13 @@ class V2Rig:
         self.address = self.cfg.address
         self.port = port
         self.switch = None
+        critical = critical or (_off, _on)
         self.core = JointController(self.motor, self.clock, self.cfg,
-                                    Logger("J1", write=self.lines.append))
+                                    Logger("J1", write=self.lines.append), critical)
         self.run_ms(2000)
         assert self.core.ready
         self.switch = ProtocolSwitch(self.core, self.address, self._make_target, self._legacy,
-                                     (_off, _on), _activity)
+                                     critical, _activity)
         self.motor.calls = []
         self.seq = 0
 

@@ -22,10 +22,13 @@ pointer, wrapping at the end; a read serves bytes from the pointer, wrapping, on
 and the hardware's extra request (prefetch / RX_DONE) moves the pointer once more (an N-byte read
 leaves it at start + N + 1). END_WRITE is not raised for a write that only set the address.
 `memaddr` is the last address selected. A user handler for WRITE_REQ/READ_REQ runs before the
-built-in copy. Soft handlers (`hard=False`) run after the transaction, with the heap unlocked, as
-the scheduler would run them. `on_wire`, if set, is called between bytes (tests use it to run the
+built-in copy. Soft handlers (`hard=False`) run as the scheduler runs them, with the heap
+unlocked: before the main thread's next step, i.e. before `on_wire` if the main loop runs in the
+middle of the transaction (an END_WRITE at the repeated START is seen during the read), else
+after the transaction. `on_wire`, if set, is called between bytes (tests use it to run the
 joint's main loop in the middle of a transaction); `active` is what the peripheral's activity
-status bit shows.
+status bit shows. After `deinit()` the target answers no more: the rest of a transaction in
+progress reads 0xFF (SDA released) and its written bytes are lost.
 """
 
 try:
@@ -83,6 +86,7 @@ class FakeI2CTarget:
         self._mem_addr_count = 0
         self.active = False
         self.on_wire = None
+        self._live = True
         self._rx = bytearray(_FIFO)
         self._rx_len = 0
         self._rx_pos = 0
@@ -132,6 +136,7 @@ class FakeI2CTarget:
 
     def deinit(self):
         self._handler = None
+        self._live = False
 
     # ---- the controller side, used by the simulated bus ----
 
@@ -215,6 +220,7 @@ class FakeI2CTarget:
 
     def _wire(self):
         if self.on_wire is not None:
+            self._run_soft()
             self.on_wire()
 
     def _reset_helper(self):
@@ -234,6 +240,9 @@ class FakeI2CTarget:
             self._state = _ADDR_MATCH_WRITE
 
     def _write_request(self):
+        if not self._live:
+            self._rx_pos = self._rx_len
+            return
         self._fire(IRQ_WRITE_REQ)  # a user handler may take bytes first (readinto)
         mem = self._mem
         while self._rx_pos < self._rx_len:
@@ -259,6 +268,8 @@ class FakeI2CTarget:
             self._wire()
 
     def _read_request(self):
+        if not self._live:
+            return 0xFF
         self._fire(IRQ_READ_REQ)
         mem = self._mem
         if self._state == _MEM_ADDR_SELECT:  # only part of a multi-byte address arrived
