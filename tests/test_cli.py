@@ -292,6 +292,26 @@ def test_hardware_doc_has_the_generated_pin_map_and_the_readme_cites_only_files_
         assert (root / cited).exists(), cited
 
 
+def test_the_hardware_doc_covers_the_way_to_a_real_arm() -> None:
+    """docs/hardware.md has what a first real arm needs, with the commands that exist."""
+    from pathlib import Path
+
+    from bioscara.cli import build_parser
+    doc = (Path(__file__).resolve().parent.parent / "docs" / "hardware.md").read_text()
+    for section in ("## Parts", "## Wiring of one joint board", "## MicroPython on the Pico",
+                    "## The joint firmware: `bioscara flash`", "## The joint bus on a Raspberry Pi",
+                    "## Power-up order", "## First power-up checklist"):
+        assert section in doc, section
+    for fact in ("MicroPython 1.26 or newer", "dtparam=i2c_arm=on", "i2c_arm_baudrate", "Pull-ups",
+                 "Clock stretching", "BIOSCARA_BUS"):
+        assert fact in doc, fact
+    commands = set(build_parser()._subparsers._group_actions[0].choices)  # type: ignore[union-attr]
+    used = set(re.findall(r"`bioscara (\w+)", doc)) | set(re.findall(r"^bioscara (\w+)", doc, re.M))
+    assert used and used <= commands, used - commands
+    for step in ("scan", "flash", "home", "move"):
+        assert step in used, step
+
+
 def test_user_config_file_and_bus_environment_variable(capsys: pytest.CaptureFixture[str], tmp_path,
                                                        monkeypatch: pytest.MonkeyPatch) -> None:
     import os
