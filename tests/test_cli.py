@@ -263,7 +263,9 @@ def test_one_shape_for_the_command_line(capsys: pytest.CaptureFixture[str], tmp_
     code, _, err = run(capsys, "--json", "shell")
     assert code == 2 and "`bioscara shell` has no --json output" in err
     for argv, option in ((("plot", "x.csv", "--config", "a.toml"), "--config"), (("demo", "--bus", "smbus:1"), "--bus"),
-                         (("console", "/dev/ttyACM0", "--json"), "--json"), (("sim", "stop", "--bus", "smbus:1"), "--bus")):
+                         (("console", "/dev/ttyACM0", "--json"), "--json"), (("sim", "stop", "--bus", "smbus:1"), "--bus"),
+                         (("scan", "--protocol", "v2"), "--protocol"),
+                         (("flash", "--dry-run", "--joint", "j1", "--protocol", "v2"), "--protocol")):
         code, _, err = run(capsys, *argv)
         assert code == 2 and f"unrecognized arguments: {option}" in err and len(err.splitlines()) == 1, argv
     code, _, err = run(capsys, "home", "j1", "--timeout", "-5")

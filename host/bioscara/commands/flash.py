@@ -17,7 +17,7 @@ from .options import shown
 NAME = "flash"
 HELP = ("deploy the joint firmware onto a MicroPython board (mpremote): precompile, copy what changed, "
         "verify, reboot, and with --bus check the joint's version over the bus")
-USES = ("bus", "json")
+USES = ("bus", "json")  # --bus for the version check, which needs no --protocol
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
