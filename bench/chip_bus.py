@@ -46,6 +46,7 @@ REPEATS = 7
 CYCLES = 10
 GAP_US = 3000.0
 CYCLE_PERIOD_US = 10_000.0  # host cycling at 100 Hz
+CYCLE_NAMES = ("ANGLEMOVED", "GETENCODERRPM", "SETRPM")  # the original host's per-joint cycle
 COMMAND_VALUES = {"SETRPM": (10.0,), "MOVETOANGLE": (1.0,), "SETUP": (30, 10, 0, 0)}
 
 
@@ -99,7 +100,7 @@ def enable(bus: JointBusClient) -> bool:
 def host_cycle(pico: EmulatedPico, seconds: float = 30.0) -> None:
     """The original host cycling at 100 Hz at 400 kHz in the background (for the main-loop run):
     the 3-transaction cycle; NAKed while the joint is not on the bus."""
-    cycle = [(ADDRESS, *legacy_transaction(n)) for n in ("ANGLEMOVED", "GETENCODERRPM", "SETRPM")]
+    cycle = [(ADDRESS, *legacy_transaction(n)) for n in CYCLE_NAMES]
     JointBusClient(pico).start_cycle(cycle, period_us=CYCLE_PERIOD_US, repeat=round(seconds * 1e6 / CYCLE_PERIOD_US))
 
 
@@ -157,7 +158,7 @@ def bus_figures(image: Any, plugins: Iterable[dict[str, Any]] = ()) -> dict[str,
             held, irq, _ = transaction_figures(bus, *legacy_transaction(name))
             figures[f"chip.scl_held_us.{name}"] = round(held, 1)
             figures[f"chip.irq_cpu_us.{name}"] = round(irq, 1)
-        cycle = [legacy_transaction(n) for n in ("ANGLEMOVED", "GETENCODERRPM", "SETRPM")]
+        cycle = [legacy_transaction(n) for n in CYCLE_NAMES]
         for khz in SPEEDS_KHZ:
             bus.set_khz(khz)
             span, failed = cycle_figure(bus, cycle)

@@ -94,8 +94,9 @@ def test_read_all_and_lifecycle_use_the_arms_joints(console: Console, recorder: 
     recorder.clear()
     console.ok("deactivate", "cleanup")
     assert arm.lifecycle is Lifecycle.UNCONFIGURED
+    # ... and the watchdog activate turned on goes off again: a host of another kind may come next.
     assert recorder.to(J1) == [bytes([P.STOP, 0]), bytes([P.SETHOLDCURRENT, 0]), bytes([P.SETCURRENT, 0]),
-                               bytes([P.SETBRAKEMODE, 0])]
+                               bytes([P.SETBRAKEMODE, 0]), bytes([P.WATCHDOG]) + P.register("WATCHDOG").encode(0)]
     assert "cannot activate while unconfigured" in console.fails("activate")
 
 
