@@ -395,3 +395,24 @@ def test_errors_are_coloured_on_a_terminal_not_escaped(tmp_path: Path) -> None:
             os.kill(pid, 9)
             os.waitpid(pid, 0)
         os.close(fd)
+
+
+def test_protocol_chooses_the_shells_and_the_panels_protocol(config: ArmConfig) -> None:
+    """`--protocol` is honoured where it is offered (the shell and the panel used to ignore it)."""
+    import argparse
+
+    from bioscara.commands.panel import open_model
+    from bioscara.commands.shell import open_context
+    from bioscara.session import Session
+    context = open_context(config, "legacy")
+    try:
+        assert context.arm.protocol == "legacy"
+    finally:
+        context.bus.close()
+    session = Session(argparse.Namespace(protocol="legacy", config=None, bus="sim:virtual"))
+    model = open_model(session, 100.0, threaded=False)
+    try:
+        assert model.arm.protocol == "legacy"
+    finally:
+        model.close()
+        session.close()
