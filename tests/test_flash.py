@@ -498,8 +498,3 @@ def test_a_missing_port_is_explained_like_the_bus_explains_it(capsys, tmp_path):
     err = capsys.readouterr().err
     assert code == 1 and "does not exist (is the board plugged in?" in err
 
-
-def test_ports_says_a_micropython_repl_is_a_board_to_flash(unix_port_serial, capsys):
-    assert cli.main(["ports", "--json", unix_port_serial]) == 0
-    (entry,) = json.loads(capsys.readouterr().out)
-    assert entry["kind"] == "MicroPython board" and entry["use"] == f"bioscara flash {unix_port_serial} --joint j1"
