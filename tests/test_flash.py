@@ -267,6 +267,18 @@ def test_a_port_without_a_repl_is_refused(tmp_path):
         os.close(device)
 
 
+def test_a_pseudo_terminal_nothing_answers_on_is_refused_not_waited_on_for_good():
+    """mpremote reads /dev/pts/* without a timeout: `bioscara flash` on a simulated joint's console or
+    a shell's terminal used to hang until killed."""
+    controller, device = pty.openpty()
+    try:
+        with pytest.raises(mpboard.FlashError, match="no MicroPython REPL on /dev/pts/.*nothing answered within 0.3 s"):
+            mpboard.MpremoteBoard(os.ttyname(device), timeout=0.3)
+    finally:
+        os.close(controller)
+        os.close(device)
+
+
 # ---- the version check over the bus ----
 
 @pytest.fixture
