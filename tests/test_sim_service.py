@@ -215,6 +215,8 @@ def test_the_idle_exit_comes_from_the_configuration_or_the_command(
     assert "without a client" not in capsys.readouterr().out, "0: never"
     assert cli.main(["sim", "status", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["idle_exit_s"] is None
+    assert cli.main(["sim", "start", "--idle-exit", "3"]) == 0
+    assert "already running" in capsys.readouterr().err, "not silently ignored"
     assert cli.main(["sim", "status", "--idle-exit", "3"]) == 2
     assert cli.main(["sim", "--pty", "--idle-exit", "3"]) == 2
     monkeypatch.setenv("BIOSCARA_SIM_IDLE_EXIT", "soon")

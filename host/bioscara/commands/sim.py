@@ -65,6 +65,9 @@ def run(args: argparse.Namespace, session: Session) -> int:
         return 1
     data = _describe(status, started)
     session.emit(data, _render(data))
+    if args.idle_exit is not None and not started and status.get("idle_exit_s") != (args.idle_exit * 60.0 or None):
+        session.err("warning: --idle-exit applies to an arm this command starts; this one was already "
+                    "running (`bioscara sim stop` first to change it)")
     return 0
 
 
