@@ -86,6 +86,10 @@ def main() -> None:
     panel = subprocess.run([sys.executable, str(ROOT / "bench" / "panel.py")], capture_output=True, text=True,
                            check=True).stdout
     print("".join(f"  {line}\n" for line in panel.splitlines()), end="")
+    print("the shared simulated arm (`sim:`), 4 joints in real time, % of one core")
+    service = subprocess.run([sys.executable, str(ROOT / "bench" / "sim_service.py")], capture_output=True,
+                             text=True, check=True).stdout
+    print("".join(f"  {line}\n" for line in service.splitlines()), end="")
 
 
 if __name__ == "__main__":

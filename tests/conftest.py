@@ -37,11 +37,15 @@ class Recorder:
 @pytest.fixture(autouse=True)
 def private_home(tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch) -> Path:
     """Every test gets its own state and config directories, and `sim:` means the in-process
-    simulator in virtual time unless a test asks for the shared one (tests/test_sim_service.py)."""
+    simulator in virtual time unless a test asks for the shared one (tests/test_sim_service.py),
+    which ends by itself after a minute unused."""
     home = tmp_path_factory.mktemp("home")
     monkeypatch.setenv("XDG_STATE_HOME", str(home / "state"))
     monkeypatch.setenv("XDG_CONFIG_HOME", str(home / "config"))
     monkeypatch.setenv("BIOSCARA_BUS", "sim:virtual")
+    # A shared simulated arm that a test starts (and a run killed before its teardown leaves
+    # behind) ends after a minute unused.
+    monkeypatch.setenv("BIOSCARA_SIM_IDLE_EXIT", "1")
     return home
 
 

@@ -263,7 +263,9 @@ def test_one_shape_for_the_command_line(capsys: pytest.CaptureFixture[str], tmp_
     code, _, err = run(capsys, "--json", "shell")
     assert code == 2 and "`bioscara shell` has no --json output" in err
     for argv, option in ((("plot", "x.csv", "--config", "a.toml"), "--config"), (("demo", "--bus", "smbus:1"), "--bus"),
-                         (("console", "/dev/ttyACM0", "--json"), "--json"), (("sim", "stop", "--bus", "smbus:1"), "--bus")):
+                         (("console", "/dev/ttyACM0", "--json"), "--json"), (("sim", "stop", "--bus", "smbus:1"), "--bus"),
+                         (("scan", "--protocol", "v2"), "--protocol"),
+                         (("flash", "--dry-run", "--joint", "j1", "--protocol", "v2"), "--protocol")):
         code, _, err = run(capsys, *argv)
         assert code == 2 and f"unrecognized arguments: {option}" in err and len(err.splitlines()) == 1, argv
     code, _, err = run(capsys, "home", "j1", "--timeout", "-5")
@@ -290,6 +292,26 @@ def test_hardware_doc_has_the_generated_pin_map_and_the_readme_cites_only_files_
     readme = (root / "README.md").read_text()
     for cited in re.findall(r"`([\w./-]+\.md)`", readme):
         assert (root / cited).exists(), cited
+
+
+def test_the_hardware_doc_covers_the_way_to_a_real_arm() -> None:
+    """docs/hardware.md has what a first real arm needs, with the commands that exist."""
+    from pathlib import Path
+
+    from bioscara.cli import build_parser
+    doc = (Path(__file__).resolve().parent.parent / "docs" / "hardware.md").read_text()
+    for section in ("## Parts", "## Wiring of one joint board", "## MicroPython on the Pico",
+                    "## The joint firmware: `bioscara flash`", "## The joint bus on a Raspberry Pi",
+                    "## Power-up order", "## First power-up checklist"):
+        assert section in doc, section
+    for fact in ("MicroPython 1.26 or newer", "dtparam=i2c_arm=on", "i2c_arm_baudrate", "Pull-ups",
+                 "Clock stretching", "BIOSCARA_BUS"):
+        assert fact in doc, fact
+    commands = set(build_parser()._subparsers._group_actions[0].choices)  # type: ignore[union-attr]
+    used = set(re.findall(r"`bioscara (\w+)", doc)) | set(re.findall(r"^bioscara (\w+)", doc, re.M))
+    assert used and used <= commands, used - commands
+    for step in ("scan", "flash", "home", "move"):
+        assert step in used, step
 
 
 def test_user_config_file_and_bus_environment_variable(capsys: pytest.CaptureFixture[str], tmp_path,

@@ -232,7 +232,7 @@ def test_reflashing_another_joint_warns():
     board._info = replace(RP2, installed_firmware=flash.FIRMWARE_VERSION, installed_joint="J2")
     plan = flash.plan(board, "J3")
     assert plan.updated == ("/joint_config.json",)
-    assert any("was configured as J2" in w for w in plan.warnings)
+    assert any("was configured as j2; it becomes j3" in w for w in plan.warnings)
 
 
 # ---- refusals ----
@@ -267,6 +267,18 @@ def test_a_port_without_a_repl_is_refused(tmp_path):
         os.close(device)
 
 
+def test_a_pseudo_terminal_nothing_answers_on_is_refused_not_waited_on_for_good():
+    """mpremote reads /dev/pts/* without a timeout: `bioscara flash` on a simulated joint's console or
+    a shell's terminal used to hang until killed."""
+    controller, device = pty.openpty()
+    try:
+        with pytest.raises(mpboard.FlashError, match="no MicroPython REPL on /dev/pts/.*nothing answered within 0.3 s"):
+            mpboard.MpremoteBoard(os.ttyname(device), timeout=0.3)
+    finally:
+        os.close(controller)
+        os.close(device)
+
+
 # ---- the version check over the bus ----
 
 @pytest.fixture
@@ -294,7 +306,7 @@ def test_a_mismatching_identity_is_reported(sim_bus, monkeypatch):
     check = flash.check_identity(sim_bus, "J2", 0x11)  # the simulated J1 sits at 0x11
     assert not check.ok
     running = ".".join(map(str, FIRMWARE_VERSION))
-    assert check.problems == (f"0x11: firmware {running}, expected 9.9.9", "0x11: joint id 1, expected 2 (J2)")
+    assert check.problems == (f"0x11: firmware {running}, expected 9.9.9", "0x11: joint id 1, expected 2 (j2)")
 
 
 def test_a_joint_that_does_not_answer_is_reported(sim_bus):
@@ -316,7 +328,7 @@ def test_cli_json_report_with_the_version_check(capsys, monkeypatch):
     code, out, _ = run_cli(capsys, monkeypatch, FakeBoard(), "--joint", "j1", "--bus", "sim:virtual", "--json")
     assert code == 0
     result = json.loads(out)
-    assert result["joint"] == "J1" and result["address"] == 0x11 and result["compiled"] is True
+    assert result["joint"] == "j1" and result["address"] == 0x11 and result["compiled"] is True
     assert "/joint/app.mpy" in result["added"] and result["removed"] == [] and result["verified"] is True
     assert result["board"]["arch"] == "armv6m" and result["board"]["mpy_version"] == 6
     assert result["identity"]["ok"] is True and result["identity"]["found"]["joint_id"] == 1
@@ -326,7 +338,7 @@ def test_cli_human_report_says_the_version_check_was_skipped(capsys, monkeypatch
     code, out, _ = run_cli(capsys, monkeypatch, FakeBoard(), "--joint", "J4")
     text = " ".join(out.split())
     assert code == 0
-    assert f"firmware {flash.FIRMWARE} for J4 (I2C 0x14), .mpy v6 (armv6m" in text
+    assert f"firmware {flash.FIRMWARE} for j4 (I2C 0x14), .mpy v6 (armv6m" in text
     assert "would be" not in text and "added /joint/core.mpy" in text
     assert "version check skipped" in text
 
@@ -337,6 +349,30 @@ def test_cli_dry_run(capsys, monkeypatch):
     assert code == 0 and board.files == {} and board.log == []
     result = json.loads(out)
     assert result["dry_run"] is True and result["verified"] is False and result["identity"] is None
+
+
+def test_a_dry_run_needs_no_board(capsys, monkeypatch, tmp_path):
+    """What would go onto a stock Pico: every file with its size, the joint config validated first."""
+    monkeypatch.setattr(mpboard, "open_board", lambda port: pytest.fail("no board is opened"))
+    assert cli.main(["flash", "--joint", "J2", "--dry-run", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    files = flash.build_image("J2", flash.STOCK_PICO).files
+    assert result["joint"] == "j2" and result["port"] is None and result["board"]["assumed"] is True
+    assert result["files"] == {path: len(data) for path, data in files.items()}
+    assert result["added"] == list(files) and result["write_bytes"] == sum(map(len, files.values()))
+    assert result["joint_config"]["valid"] and result["board"]["arch"] == "armv6m"
+    assert cli.main(["flash", "--joint", "j2", "--dry-run"]) == 0
+    text = capsys.readouterr().out
+    assert "no board given" in text and "for j2 (I2C 0x12)" in text and "J2" not in text
+    assert f"/joint/core.mpy {len(files['/joint/core.mpy']):,} B" in " ".join(text.split())
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps(dict(json.loads(flash.joint_config("J2")[0]), address=200)))
+    assert cli.main(["flash", "--joint-config", str(bad), "--dry-run"]) == 2
+    assert "address" in capsys.readouterr().err
+    for argv, says in ((["--joint", "j2"], "which board?"), (["--show-config"], "reads a board"),
+                       (["--joint", "j2", "--dry-run", "--bus", "sim:virtual"], "flashes nothing")):
+        assert cli.main(["flash", *argv]) == 2
+        assert says in capsys.readouterr().err
 
 
 def test_cli_version_mismatch_fails_after_reporting(capsys, monkeypatch):
@@ -443,7 +479,7 @@ def test_a_joint_config_the_user_wrote_is_validated_then_deployed(capsys, monkey
     path.write_text(json.dumps(mine))
     board = FakeBoard()
     code, out, _ = run_cli(capsys, monkeypatch, board, "--joint-config", str(path), "--json")
-    assert code == 0 and json.loads(out)["joint"] == "J3"
+    assert code == 0 and json.loads(out)["joint"] == "j3"
     assert json.loads(board.files["/joint_config.json"])["motor"]["rsense_ohm"] == 0.1
     bad = tmp_path / "bad.json"
     bad.write_text(json.dumps(dict(shipped, i2c={"bus": 0, "sda": 5, "scl": 4})))
@@ -473,3 +509,4 @@ def test_a_missing_port_is_explained_like_the_bus_explains_it(capsys, tmp_path):
     code = cli.main(["flash", str(tmp_path / "ttyACM7"), "--joint", "j1", "--dry-run"])
     err = capsys.readouterr().err
     assert code == 1 and "does not exist (is the board plugged in?" in err
+

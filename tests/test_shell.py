@@ -349,3 +349,70 @@ def test_stats_count_from_start_and_restart_resets_them(console: Console) -> Non
     console.ok("restart", "stop")
     assert shell.communicator.stats.cycles < 300, "restart counts afresh"
 
+
+
+def test_errors_are_coloured_on_a_terminal_not_escaped(tmp_path: Path) -> None:
+    """`bioscara shell` in a pseudo-terminal, as a user runs it: an error comes in red, with the
+    terminal's escape codes intact (prompt_toolkit's stdout patch used to print them as `?[31m`)."""
+    import os
+    import pty
+    import select
+
+    pid, fd = pty.fork()
+    if pid == 0:  # the child: the shell on the in-process simulator, its own state directory
+        os.environ.update(BIOSCARA_BUS="sim:virtual", XDG_STATE_HOME=str(tmp_path))
+        os.execv(sys.executable, [sys.executable, "-m", "bioscara.cli", "shell"])
+    seen = b""
+
+    def read_until(marker: bytes, timeout: float = 60.0, start: int = 0) -> bool:
+        """Read the terminal until `marker` shows up after `start`, answering cursor position
+        requests as a terminal does."""
+        nonlocal seen
+        deadline = time.monotonic() + timeout
+        while seen.find(marker, start) < 0 and time.monotonic() < deadline:
+            if select.select([fd], [], [], 0.1)[0]:
+                try:
+                    data = os.read(fd, 65536)
+                except OSError:  # the shell has gone
+                    break
+                seen += data
+                for _ in range(data.count(b"\x1b[6n")):
+                    os.write(fd, b"\x1b[1;1R")
+        return seen.find(marker, start) >= 0
+    try:
+        assert read_until(b"bioscara[unconfigured]>"), seen[-300:]
+        os.write(fd, b"frobnicate\r")
+        assert read_until(b"`help` lists them"), seen[-300:]
+        assert b"\x1b[31merror: unknown command 'frobnicate'" in seen
+        assert b"?[31m" not in seen and b"^[[31m" not in seen
+        assert read_until(b"bioscara[unconfigured]>", 30.0, start=seen.index(b"`help` lists them"))
+        os.write(fd, b"quit\r")  # typed at the next prompt
+        read_until(b"never printed", timeout=30.0)  # drained until the shell closes its terminal
+        assert os.waitpid(pid, 0)[1] == 0
+        pid = 0
+    finally:
+        if pid:
+            os.kill(pid, 9)
+            os.waitpid(pid, 0)
+        os.close(fd)
+
+
+def test_protocol_chooses_the_shells_and_the_panels_protocol(config: ArmConfig) -> None:
+    """`--protocol` is honoured where it is offered (the shell and the panel used to ignore it)."""
+    import argparse
+
+    from bioscara.commands.panel import open_model
+    from bioscara.commands.shell import open_context
+    from bioscara.session import Session
+    context = open_context(config, "legacy")
+    try:
+        assert context.arm.protocol == "legacy"
+    finally:
+        context.bus.close()
+    session = Session(argparse.Namespace(protocol="legacy", config=None, bus="sim:virtual"))
+    model = open_model(session, 100.0, threaded=False)
+    try:
+        assert model.arm.protocol == "legacy"
+    finally:
+        model.close()
+        session.close()

@@ -17,19 +17,22 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import replace
 from pathlib import Path
 
 import pytest
 
 from bioscara import cli, sim_service
+from bioscara.arm import make_joint
 from bioscara.config import load_config
 from bioscara.errors import CommError, ConfigError
 from bioscara.hardware import sim_joint_specs
+from bioscara.sim_server import SimServer
 from bioscara.sim_service import ServiceBus
 
 SPECS = sim_joint_specs(load_config())
+IDLE_EXIT_S = 60.0  # a run that is killed before its teardown leaves no service for longer
 
 
 @pytest.fixture
@@ -61,13 +64,25 @@ def quick_config(tmp_path: Path) -> Path:
     return path
 
 
-def bioscara(*argv: str) -> subprocess.Popen[str]:
-    return subprocess.Popen([sys.executable, "-m", "bioscara.cli", *argv], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+@pytest.fixture
+def bioscara() -> Iterator[Callable[..., subprocess.Popen[str]]]:
+    """Starts `bioscara ARGS...` in the background; what still runs at the end is killed."""
+    started: list[subprocess.Popen[str]] = []
+
+    def spawn(*argv: str) -> subprocess.Popen[str]:
+        started.append(subprocess.Popen([sys.executable, "-m", "bioscara.cli", *argv], stdout=subprocess.PIPE,
+                                        stderr=subprocess.PIPE, text=True))
+        return started[-1]
+    yield spawn
+    for process in started:
+        if process.poll() is None:
+            process.kill()
+            process.communicate()
 
 
 def test_state_is_kept_between_commands_and_clients_share_the_arm(
-        state_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+        state_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str],
+        bioscara: Callable[..., subprocess.Popen[str]]) -> None:
     config = str(quick_config(tmp_path))
     assert cli.main(["home", "j3", "--config", config]) == 0
     assert cli.main(["move", "j3", "2.0", "--config", config]) == 0, "the next command finds j3 homed"
@@ -108,7 +123,7 @@ def test_start_status_stop(state_dir: Path, capsys: pytest.CaptureFixture[str]) 
 
 
 def test_files_are_private(state_dir: Path) -> None:
-    assert sim_service.start(state_dir, SPECS)
+    assert sim_service.start(state_dir, SPECS, idle_exit_s=IDLE_EXIT_S)
     assert stat.S_IMODE(state_dir.stat().st_mode) == 0o700
     for name in ("sim.sock", "sim.lock", "sim.log"):
         assert stat.S_IMODE((state_dir / name).stat().st_mode) == 0o600, name
@@ -116,7 +131,7 @@ def test_files_are_private(state_dir: Path) -> None:
 
 def test_concurrent_starts_run_one_arm(state_dir: Path) -> None:
     results: list[bool] = []
-    threads = [threading.Thread(target=lambda: results.append(sim_service.start(state_dir, SPECS)))
+    threads = [threading.Thread(target=lambda: results.append(sim_service.start(state_dir, SPECS, idle_exit_s=IDLE_EXIT_S)))
                for _ in range(4)]
     for thread in threads:
         thread.start()
@@ -133,31 +148,31 @@ def test_a_stale_socket_and_a_crashed_service_do_not_block_the_next_start(state_
     stale = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
     stale.bind(str(state_dir / "sim.sock"))  # left behind: nobody listens on it
     stale.close()
-    assert sim_service.start(state_dir, SPECS)
-    bus = ServiceBus(SPECS, state_dir)
+    assert sim_service.start(state_dir, SPECS, idle_exit_s=IDLE_EXIT_S)
+    bus = ServiceBus(SPECS, state_dir, idle_exit_s=IDLE_EXIT_S)
     assert bus.scan() == [0x11, 0x12, 0x13, 0x14]
     pid = sim_service.status(state_dir)["pid"]  # type: ignore[index]
     os.kill(pid, signal.SIGKILL)
     assert wait_until(lambda: sim_service.status(state_dir) is None)
     with pytest.raises(CommError, match="not running"):
         bus.scan()  # the arm is gone: this client is told, it does not start a new one by itself
-    assert sim_service.start(state_dir, SPECS), "the lock died with the service"
+    assert sim_service.start(state_dir, SPECS, idle_exit_s=IDLE_EXIT_S), "the lock died with the service"
     assert bus.scan() == [0x11, 0x12, 0x13, 0x14], "the client reconnects"
     bus.close()
 
 
 def test_another_configuration_is_refused_until_the_arm_is_stopped(state_dir: Path) -> None:
-    sim_service.start(state_dir, SPECS)
+    sim_service.start(state_dir, SPECS, idle_exit_s=IDLE_EXIT_S)
     other = [replace(spec, address=spec.address + 0x10) for spec in SPECS]
     with pytest.raises(ConfigError, match="bioscara sim stop"):
-        ServiceBus(other, state_dir)
+        ServiceBus(other, state_dir, idle_exit_s=IDLE_EXIT_S)
     sim_service.stop(state_dir)
-    ServiceBus(other, state_dir).close()
+    ServiceBus(other, state_dir, idle_exit_s=IDLE_EXIT_S).close()
 
 
 def test_a_client_speaking_garbage_is_hung_up_on_and_others_are_served(state_dir: Path) -> None:
-    sim_service.start(state_dir, SPECS)
-    bus = ServiceBus(SPECS, state_dir)
+    sim_service.start(state_dir, SPECS, idle_exit_s=IDLE_EXIT_S)
+    bus = ServiceBus(SPECS, state_dir, idle_exit_s=IDLE_EXIT_S)
     rogue = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
     rogue.settimeout(5.0)
     rogue.connect(str(state_dir / "sim.sock"))
@@ -166,3 +181,87 @@ def test_a_client_speaking_garbage_is_hung_up_on_and_others_are_served(state_dir
     rogue.close()
     assert bus.transfer(0x11, bytes([0x0F]), 2)[0] == ord("O"), "PING answered"
     bus.close()
+
+
+def test_an_unused_arm_ends_by_itself_a_client_or_a_moving_joint_keeps_it(state_dir: Path) -> None:
+    """An aborted script or test run leaves nothing running for long: the service ends after its
+    idle exit (here 1 s) without a client and with every joint at rest, not before."""
+    assert sim_service.start(state_dir, SPECS, idle_exit_s=1.0)
+    socket_file = state_dir / "sim.sock"
+    bus = ServiceBus(SPECS, state_dir, autostart=False)
+    joint = make_joint(load_config().joints["j1"], bus)
+    joint.init()
+    time.sleep(2.0)  # twice the idle exit
+    assert socket_file.exists(), "a connected client keeps it"
+    joint.enable(50, 30)
+    joint.move_steps(10_000)  # about 4 s at the speed SETUP leaves; the original deadman lets it run
+    joint.close()
+    bus.close()
+    time.sleep(2.0)
+    assert socket_file.exists(), "a joint that still moves keeps it"
+    assert sim_service.status(state_dir)["moving"] == ["j1"]  # type: ignore[index]
+    assert wait_until(lambda: not socket_file.exists(), timeout=30.0), "ended once the joint came to rest"
+    assert "idle for" in (state_dir / "sim.log").read_text()
+    assert sim_service.status(state_dir) is None
+
+
+def test_the_idle_exit_comes_from_the_configuration_or_the_command(
+        state_dir: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    monkeypatch.setenv("BIOSCARA_SIM_IDLE_EXIT", "2.5")
+    assert cli.main(["sim", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["idle_exit_s"] == 150.0
+    assert cli.main(["sim", "stop"]) == 0
+    assert cli.main(["sim", "start", "--idle-exit", "0"]) == 0
+    assert "without a client" not in capsys.readouterr().out, "0: never"
+    assert cli.main(["sim", "status", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["idle_exit_s"] is None
+    assert cli.main(["sim", "start", "--idle-exit", "3"]) == 0
+    assert "already running" in capsys.readouterr().err, "not silently ignored"
+    assert cli.main(["sim", "status", "--idle-exit", "3"]) == 2
+    assert cli.main(["sim", "--pty", "--idle-exit", "3"]) == 2
+    monkeypatch.setenv("BIOSCARA_SIM_IDLE_EXIT", "soon")
+    assert cli.main(["sim", "start"]) == 2
+    assert "BIOSCARA_SIM_IDLE_EXIT" in capsys.readouterr().err
+
+
+class _Probe:
+    """A frontend with nothing connected: notes the simulated and the wall clock when a byte arrives."""
+
+    def __init__(self, server: SimServer) -> None:
+        self.server = server
+        self.inside, self.outside = socket.socketpair()
+        self.inside.setblocking(False)
+        self.first: tuple[int, float] | None = None
+        self.seen: tuple[int, float] | None = None
+
+    def fds(self) -> list[int]:
+        return [self.inside.fileno()]
+
+    def busy(self) -> bool:
+        return False
+
+    def poll(self) -> None:
+        now = (self.server.clock.now_us, time.monotonic())
+        if self.first is None:
+            self.first = now
+        try:
+            if self.inside.recv(1):
+                self.seen = now
+        except BlockingIOError:
+            pass
+
+
+def test_at_rest_the_joints_follow_the_wall_clock_and_input_finds_them_caught_up() -> None:
+    server = SimServer(SPECS)
+    probe = _Probe(server)
+    server.add_frontend(probe)
+    with server:
+        assert wait_until(lambda: probe.first is not None)
+        time.sleep(0.7)  # a few of the long waits at rest
+        assert not server.moving()
+        probe.outside.send(b"x")
+        assert wait_until(lambda: probe.seen is not None)
+    assert probe.first is not None and probe.seen is not None
+    simulated = (probe.seen[0] - probe.first[0]) / 1e6
+    wall = probe.seen[1] - probe.first[1]
+    assert wall >= 0.7 and simulated == pytest.approx(wall, abs=0.1), "served at the wall clock, not a wait behind"

@@ -101,6 +101,7 @@ class SimConfig:
     realtime: bool = False
     payload_kg: float = 0.0  # carried by the gripper: the simulated arm's inertia (and J2's weight)
     noise: str = "nominal"  # encoder and ISR corner of the simulated arm: "nominal" or "harsh"
+    idle_exit_min: float = 15.0  # the shared arm (sim:) ends after this long unused; 0: never
     start: dict[str, float] = field(default_factory=dict)  # joint units, one entry per configured joint
 
 
@@ -122,6 +123,7 @@ class ArmConfig:
 
 USER_CONFIG_NAME = "arm.toml"
 BUS_ENV = "BIOSCARA_BUS"
+IDLE_EXIT_ENV = "BIOSCARA_SIM_IDLE_EXIT"  # minutes: overrides sim.idle_exit_min (test runs shorten it)
 
 
 def user_config_path() -> Path:
@@ -134,7 +136,8 @@ def resolve_config(path: str | os.PathLike[str] | None = None, bus: str | None =
     """The configuration a command runs with.
 
     The file: `path`, else the user's (`user_config_path()`) if it exists, else the shipped one.
-    The bus: `bus` (--bus), else $BIOSCARA_BUS, else the file's.
+    The bus: `bus` (--bus), else $BIOSCARA_BUS, else the file's. The shared simulated arm's idle
+    exit: $BIOSCARA_SIM_IDLE_EXIT (minutes), else the file's `sim.idle_exit_min`.
     """
     if path is None and user_config_path().is_file():
         path = user_config_path()
@@ -144,6 +147,15 @@ def resolve_config(path: str | os.PathLike[str] | None = None, bus: str | None =
         if not bus and not url.startswith(BUS_SCHEMES):
             raise ConfigError(f"unknown bus {url!r} in ${BUS_ENV}; use one of {', '.join(BUS_SCHEMES)}")
         config = replace(config, bus=replace(config.bus, url=url, use_mock_hardware=False))
+    idle = os.environ.get(IDLE_EXIT_ENV, "").strip()
+    if idle:
+        try:
+            minutes = float(idle)
+        except ValueError:
+            minutes = -1.0
+        if not 0 <= minutes <= 7 * 24 * 60:
+            raise ConfigError(f"${IDLE_EXIT_ENV} = {idle[:24]!r} must be minutes in 0..10080 (0: never)")
+        config = replace(config, sim=replace(config.sim, idle_exit_min=minutes))
     return config
 
 
@@ -288,6 +300,7 @@ _SIM_KEYS = {
     "realtime": _Key(bool, default=False),
     "payload_kg": _Key(float, lo=0.0, hi=5.0, default=0.0),
     "noise": _Key(str, choices=("nominal", "harsh"), default="nominal"),
+    "idle_exit_min": _Key(float, lo=0.0, hi=7 * 24 * 60.0, default=15.0),
 }
 
 

@@ -88,6 +88,8 @@ def _table(steps: list[Step]) -> Table:
     for joint in ("j1", "j2", "j3", "j4"):
         table.add_row(joint, *(f"{s.targets[joint]:+.3f}\n{s.reached[joint]:+.4f}" for s in steps))
     table.add_row("gripper", *(f"{s.gripper_target:.3f}\n{s.gripper:.4f}" for s in steps))
-    worst = max(abs(s.reached[j] - s.targets[j]) for s in steps for j in s.targets)
-    table.caption = f"largest joint error {worst:.2e}"
+    def worst(joints: tuple[str, ...]) -> float:
+        return max(abs(s.reached[j] - s.targets[j]) for s in steps for j in joints)
+    table.caption = (f"largest joint error {worst(('j1', 'j3', 'j4')):.5f} rad (j1, j3, j4), "
+                     f"{worst(('j2',)) * 1000:.3f} mm (j2)")
     return table

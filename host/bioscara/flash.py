@@ -42,6 +42,10 @@ BOARD_MAIN = "board_main.py"  # in the firmware package; goes to the board root 
 NOT_ON_BOARD = frozenset({"sim", "configs", "tests", "__pycache__", BOARD_MAIN})
 APP_MODULE = "joint.app"
 FIRMWARE = dotted(FIRMWARE_VERSION)  # the version this host deploys and expects back
+# What mpboard's PROBE reports on a stock Raspberry Pi Pico with MicroPython v1.28.0 (the emulated
+# board's UF2): a dry run without a board shows what `flash` would deploy there.
+STOCK_PICO = BoardInfo(implementation="micropython", version=(1, 28, 0), mpy=6 | 3 << 8 | 4 << 10, small_int_bits=31,
+                       platform="rp2", machine="Raspberry Pi Pico with RP2040", i2c_target=True)
 
 
 # ---- the image ----
@@ -200,6 +204,7 @@ class Plan:
     unchanged: tuple[str, ...]
     stale: tuple[str, ...]  # files in /joint that are not part of the firmware: removed
     warnings: tuple[str, ...] = ()
+    assumed: bool = False  # no board was asked: `board` is STOCK_PICO, every file would be added
 
     @property
     def changed(self) -> bool:
@@ -224,9 +229,16 @@ def plan(board: Board, joint: str, config: tuple[bytes, firmware_config.JointCon
     stale = tuple(sorted(p for p in on_board if p.startswith(PACKAGE_DIR + "/") and p not in image.files))
     warnings = []
     if info.installed_joint and info.installed_joint != joint:
-        warnings.append(f"the board was configured as {info.installed_joint}; it becomes {joint} "
+        warnings.append(f"the board was configured as {info.installed_joint.lower()}; it becomes {joint.lower()} "
                         f"(I2C address 0x{image.address:02x})")
     return Plan(board.port, info, image, added, updated, unchanged, stale, tuple(warnings))
+
+
+def plan_without_board(joint: str, config: tuple[bytes, firmware_config.JointConfig] | None = None,
+                       board: BoardInfo = STOCK_PICO) -> Plan:
+    """What flashing `joint` would deploy on a fresh `board` (a stock Pico): every file added."""
+    image = build_image(joint, board, config)
+    return Plan("", board, image, tuple(image.files), (), (), (), assumed=True)
 
 
 def apply(board: Board, plan: Plan, progress: Callable[[str, int], None] | None = None) -> None:
@@ -314,7 +326,7 @@ def check_identity(bus: Bus, joint: str, address: int, *, timeout: float = 10.0,
     if identity.firmware != FIRMWARE_VERSION:
         problems.append(f"firmware {identity.firmware_version}, expected {FIRMWARE}")
     if identity.joint_id != expected_id:
-        problems.append(f"joint id {identity.joint_id}, expected {expected_id} ({joint})")
+        problems.append(f"joint id {identity.joint_id}, expected {expected_id} ({joint.lower()})")
     if not identity.spec_matches:
         problems.append(f"spec hash 0x{identity.spec_hash:08x} differs from this host's protocol spec")
     found = {"protocol": identity.protocol, "firmware": identity.firmware_version,
@@ -322,13 +334,18 @@ def check_identity(bus: Bus, joint: str, address: int, *, timeout: float = 10.0,
     return IdentityCheck(address, found, tuple(f"0x{address:02x}: {p}" for p in problems))
 
 
-def report(plan: Plan, *, dry_run: bool, identity: IdentityCheck | None) -> dict[str, Any]:
-    """The machine-readable result of a flash (`bioscara flash --json`)."""
+def report(plan: Plan, *, dry_run: bool, identity: IdentityCheck | None, config_source: str = "") -> dict[str, Any]:
+    """The machine-readable result of a flash (`bioscara flash --json`); joints are j1..j4."""
     board = asdict(plan.board)
-    board.update(mpy_version=plan.board.mpy_version, arch=plan.board.arch, description=plan.board.describe())
+    board.update(mpy_version=plan.board.mpy_version, arch=plan.board.arch, description=plan.board.describe(),
+                 installed_joint=plan.board.installed_joint.lower() if plan.board.installed_joint else None,
+                 assumed=plan.assumed)
     return {
-        "port": plan.port, "joint": plan.image.joint, "address": plan.image.address,
+        "port": plan.port or None, "joint": plan.image.joint.lower(), "address": plan.image.address,
         "firmware": FIRMWARE, "board": board,
+        "joint_config": {"source": config_source or f"shipped {plan.image.joint}.json", "valid": True},
+        "files": {path: len(data) for path, data in plan.image.files.items()},
+        "write_bytes": plan.write_bytes,
         "compiled": plan.image.compiled, "build": plan.image.build, "dry_run": dry_run,
         "added": list(plan.added), "updated": list(plan.updated), "unchanged": list(plan.unchanged),
         "removed": list(plan.stale), "verified": not dry_run, "warnings": list(plan.warnings),

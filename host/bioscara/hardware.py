@@ -22,7 +22,8 @@ def open_arm_bus(config: ArmConfig, **overrides: Any) -> Bus:
     """The bus of `config` (`sim:` when use_mock_hardware); keyword overrides go to the transport."""
     kwargs: dict[str, Any] = {"attempts": config.bus.attempts, "speed_hz": config.bus.speed_hz}
     if config.bus_url.startswith("sim:"):
-        kwargs.update(sim_joints=sim_joint_specs(config), seed=config.sim.seed, realtime=config.sim.realtime)
+        kwargs.update(sim_joints=sim_joint_specs(config), seed=config.sim.seed, realtime=config.sim.realtime,
+                      idle_exit_s=config.sim.idle_exit_min * 60.0 or None)
     kwargs.update(overrides)
     return open_bus(config.bus_url, **kwargs)
 

@@ -194,6 +194,8 @@ class MpremoteBoard:
         self.port = port
         if not os.path.exists(port) and not port.upper().startswith("COM"):
             raise FlashError(open_problem(port, FileNotFoundError(errno.ENOENT, port)))
+        if port.startswith("/dev/pts/"):
+            _check_answers(port, timeout)
         self._root = root.rstrip("/") + "/"
         self._errors: tuple[type[Exception], ...] = (TransportError,)
         try:
@@ -281,6 +283,32 @@ class MpremoteBoard:
             self._transport.exit_raw_repl()
             self._transport.serial.write(b"\x04")  # Ctrl-D in the normal REPL: soft reset, runs main.py
         self._transport.close()
+
+
+def _check_answers(port: str, timeout: float) -> None:
+    """FlashError unless something answers Ctrl-C on `port` within `timeout` s. mpremote reads a
+    /dev/pts/* port without a timeout, so a pseudo-terminal nothing answers on (a simulated joint's
+    console, someone's shell) would hang the flash for good; a REPL answers with its prompt."""
+    import time
+
+    from .errors import BioscaraError
+    from .serial_port import open_port
+
+    try:
+        serial_port = open_port(port, timeout=0.05)
+    except BioscaraError as exc:
+        raise FlashError(exc.detail) from None
+    try:
+        serial_port.write(b"\r\x03")  # Ctrl-C: a REPL (or a program it interrupts) answers at once
+        deadline = time.monotonic() + timeout
+        while not serial_port.read(64):
+            if time.monotonic() > deadline:
+                raise FlashError(f"no MicroPython REPL on {port}: nothing answered within {timeout:g} s "
+                                 "(is it a board's port? `bioscara ports` says what each port is)")
+    except OSError as exc:
+        raise FlashError(f"cannot use {port}: {exc}") from None
+    finally:
+        serial_port.close()
 
 
 def _last_line(exc: BaseException) -> str:

@@ -6,10 +6,17 @@ the simulated joints through exactly the code path a USB bridge board runs. Ever
 a pseudo-terminal with its serial debug console (`firmware.debug`) and its log lines.
 
 Scheduling: one thread owns the simulation. Each turn it runs every joint's main loop up to the
-wall clock (one iteration per simulated millisecond, so the joints follow real time), then waits
-at most a millisecond for input on any pseudo-terminal, and serves what arrived: bridge requests
-are executed on the simulated bus at once (advancing its clock by the wire time), debug commands
-go to their joint's console. Output to a terminal nobody reads is dropped, never waited for.
+wall clock (at the chip's loop period, so the joints follow real time), serves what arrived (bridge
+requests are executed on the simulated bus at once, advancing its clock by the wire time; debug
+commands go to their joint's console), then waits at most a millisecond for input on any
+pseudo-terminal or client socket. Output to a terminal nobody reads is dropped, never waited for.
+
+At rest: while every joint rests (no task, no setpoint, the driver's ramp at 0; see `moving`),
+only input can change anything, so the wait is `IDLE_TURN_S` instead. The simulation still runs
+every tick up to the wall clock, in one batch per turn, and input ends the wait at once, so the
+simulation has caught up before anything is served: time passes for the joints exactly as before
+(timeouts included), only a console's log lines may come up to a turn late. With `idle_exit_s`, a
+server that is also without clients (`busy()`) and without input that long stops by itself.
 """
 
 from __future__ import annotations
@@ -33,7 +40,8 @@ from .hil_bridge.bridge import Bridge
 log = logging.getLogger("bioscara.sim_server")
 
 _TURN_S = 0.001  # longest wait for input: one simulated main-loop tick
-_MAX_CATCH_UP_US = 20_000  # per turn; below the joints' 50 ms deadman
+IDLE_TURN_S = 0.25  # longest wait for input while idle
+_MAX_CATCH_UP_US = 20_000  # beyond the turn's wait; below the joints' 50 ms deadman
 _SLICE_US = 2_000  # simulated time between looks at the terminals and clients
 
 
@@ -118,11 +126,12 @@ class SimServer:
 
     `bridge_path` speaks the bridge framing; `joint_paths` maps J1..J4 to debug consoles.
     Run it with `serve_forever()` or in a thread with `start()`/`stop()`; `close()` releases the
-    terminals.
+    terminals. `idle_exit_s`: end `serve_forever` after that long idle (None: never).
     """
 
     def __init__(self, specs: Sequence[SimJointSpec], *, seed: int = 1, speed_hz: int = 400_000,
-                 port: str = "rp2") -> None:
+                 port: str = "rp2", idle_exit_s: float | None = None) -> None:
+        self.idle_exit_s = idle_exit_s
         self.clock = VirtualClock()
         self.bus = SimJointBus(self.clock, bus_hz=speed_hz)
         self._ptys: list[Pty] = []
@@ -153,7 +162,8 @@ class SimServer:
         return pty
 
     def add_frontend(self, frontend: Any) -> None:
-        """Serve `frontend` in the loop too: its `fds()` are waited on, its `poll()` runs every turn."""
+        """Serve `frontend` in the loop too: its `fds()` are waited on, its `poll()` runs every turn,
+        and while its `busy()` (a client is connected) the server is not idle."""
         self._frontends.append(frontend)
 
     def request_stop(self) -> None:
@@ -165,19 +175,49 @@ class SimServer:
         pty_fds = [pty.fileno() for pty in self._ptys]
         wall_start = time.monotonic()
         sim_start = self.clock.now_us
+        wait = _TURN_S
+        idle_since: float | None = None
         while not self._stop.is_set():
-            target = sim_start + int((time.monotonic() - wall_start) * 1e6)
+            wall = time.monotonic()
+            target = sim_start + int((wall - wall_start) * 1e6)
             behind = target - self.clock.now_us
-            if behind > _MAX_CATCH_UP_US:
+            allowed = int(wait * 1e6) + _MAX_CATCH_UP_US
+            if behind > allowed:
                 # This process was held up: let simulated time slip rather than replay the pause
                 # as silence on the bus, which the joints' deadman would take for a lost host.
-                sim_start -= behind - _MAX_CATCH_UP_US
-                target = self.clock.now_us + _MAX_CATCH_UP_US
+                sim_start -= behind - allowed
+                target = self.clock.now_us + allowed
+            if wait > _TURN_S:  # idle: nobody waited on an answer meanwhile, one batch
+                self.bus.run_until(target)
             while self.clock.now_us < target:  # in slices, serving requests in between: answers stay prompt
                 self.bus.run_until(min(target, self.clock.now_us + _SLICE_US))
                 self._serve()
-            select.select(pty_fds + [fd for f in self._frontends for fd in f.fds()], [], [], _TURN_S)
             self._serve()
+            fds = pty_fds + [fd for f in self._frontends for fd in f.fds()]
+            if self.moving():
+                wait, idle_since = _TURN_S, None
+                select.select(fds, [], [], wait)
+                continue
+            wait = IDLE_TURN_S  # every joint rests: only input can change that, and input ends the wait
+            if any(frontend.busy() for frontend in self._frontends):
+                idle_since = None
+            elif idle_since is None:
+                idle_since = wall
+            elif self.idle_exit_s is not None and wall - idle_since >= self.idle_exit_s:
+                log.info("idle for %.0f s (no client, no joint moving): stopping", wall - idle_since)
+                return
+            if select.select(fds, [], [], wait)[0]:
+                idle_since = None  # input on a terminal or the socket: somebody uses the arm
+
+    def idle(self) -> bool:
+        """No frontend has a client and no joint moves (see `moving`)."""
+        return not any(frontend.busy() for frontend in self._frontends) and not self.moving()
+
+    def moving(self) -> list[str]:
+        """The joints (J1..J4) not at rest: a task running (homing...), a setpoint, or the ramp turning."""
+        return [joint.cfg.joint for joint in self.bus.joints
+                if joint.core.task_name is not None or joint.core.qd_set or joint.core.positioning
+                or joint.stepper.driver_rpm()]
 
     def _serve(self) -> None:
         for frontend in self._frontends:

@@ -7,6 +7,11 @@ serves transactions from any number of clients over a unix socket in the state d
 time in arrival order, in the thread that runs the joints. Its joint debug consoles and a HIL
 bridge are on pseudo-terminals too (`bioscara sim` lists them).
 
+It goes away by itself after `idle_exit_s` with no client connected and no joint moving
+(`[sim] idle_exit_min`, 15 min by default; `bioscara sim start --idle-exit MIN`), so a service that
+an aborted script or test run left behind does not linger; a client that stays connected (a
+monitor, a shell, a panel) or a joint that still moves keeps it running.
+
 Files in the state directory (0700): `sim.sock` (0600), `sim.lock` (held by the running service,
 so two starts never run two arms and a crashed service leaves nothing that blocks the next one),
 `sim.log` (what the service says).
@@ -52,6 +57,7 @@ OK, NACK, FAIL = 0, 1, 2
 MAX_MESSAGE = 64 * 1024  # a longer length prefix is a client that does not speak this protocol
 START_TIMEOUT_S = 10.0  # for a new service to listen
 REPLY_TIMEOUT_S = 2.0  # per request; the service answers within a millisecond or so when healthy
+DEFAULT_IDLE_EXIT_S = 15 * 60.0
 _LENGTH = struct.Struct("<I")
 
 
@@ -95,6 +101,10 @@ class SocketFrontend:
 
     def fds(self) -> list[int]:
         return [self.listener.fileno(), *self.clients]
+
+    def busy(self) -> bool:
+        """A client is connected (the server is not idle while one is)."""
+        return bool(self.clients)
 
     def poll(self) -> None:
         self._accept()
@@ -154,6 +164,7 @@ class SocketFrontend:
             return OK, bytes(bus.scan())
         if op in (HELLO, STATUS):
             status = dict(self.status, clients=len(self.clients), transactions=self.served,
+                          moving=[name.lower() for name in self.server.moving()],
                           uptime_s=round(time.monotonic() - self.status["started"], 3))
             if op == HELLO:
                 try:
@@ -179,8 +190,9 @@ class SocketFrontend:
 
 
 def serve(state_dir: Path, specs: Sequence[SimJointSpec], *, seed: int = 1, speed_hz: int = 400_000,
-          ready: Any = None) -> int:
-    """Run the service until STOP (or SIGTERM/SIGINT); 0 also when another one already runs.
+          idle_exit_s: float | None = DEFAULT_IDLE_EXIT_S, ready: Any = None) -> int:
+    """Run the service until STOP (or SIGTERM/SIGINT, or `idle_exit_s` idle; None: never); 0 also
+    when another one already runs.
 
     `ready(line)` is told "ready" once clients can connect, or "running" if another service has
     the lock (that one serves).
@@ -207,8 +219,9 @@ def serve(state_dir: Path, specs: Sequence[SimJointSpec], *, seed: int = 1, spee
             os.umask(old)
         listener.listen(16)
         listener.setblocking(False)
-        server = SimServer(specs, seed=seed, speed_hz=speed_hz)
+        server = SimServer(specs, seed=seed, speed_hz=speed_hz, idle_exit_s=idle_exit_s)
         status = {"pid": os.getpid(), "socket": os.fspath(path), "started": time.monotonic(),
+                  "idle_exit_s": idle_exit_s,
                   "specs": specs_to_json(specs), "bridge": server.bridge_path, "consoles": server.joint_paths}
         frontend = SocketFrontend(server, listener, status)
         server.add_frontend(frontend)
@@ -216,7 +229,8 @@ def serve(state_dir: Path, specs: Sequence[SimJointSpec], *, seed: int = 1, spee
         lock.truncate()
         lock.write(f"{os.getpid()}\n")
         lock.flush()
-        log.info("simulated arm %s serving on %s", ", ".join(s.firmware_joint for s in specs), path)
+        log.info("simulated arm %s serving on %s (idle exit: %s)", ", ".join(s.firmware_joint.lower() for s in specs),
+                 path, "never" if idle_exit_s is None else f"{idle_exit_s:g} s")
         if ready:
             ready("ready")
         try:
@@ -236,10 +250,11 @@ def serve(state_dir: Path, specs: Sequence[SimJointSpec], *, seed: int = 1, spee
 
 
 def main(argv: list[str] | None = None) -> int:
-    """`python -m bioscara.sim_service STATE_DIR SPECS_JSON SEED SPEED_HZ`, as `start()` runs it."""
+    """`python -m bioscara.sim_service STATE_DIR SPECS_JSON SEED SPEED_HZ IDLE_EXIT_S`, as `start()`
+    runs it (IDLE_EXIT_S "none": never)."""
     import signal
 
-    state_dir, specs_json, seed, speed_hz = (argv if argv is not None else sys.argv[1:])[:4]
+    state_dir, specs_json, seed, speed_hz, idle = (argv if argv is not None else sys.argv[1:])[:5]
     specs = [SimJointSpec(**spec) for spec in json.loads(specs_json)]
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
 
@@ -254,7 +269,8 @@ def main(argv: list[str] | None = None) -> int:
         os.dup2(devnull, 1)  # the starter has what it waited for; nothing more goes to its pipe
         os.close(devnull)
 
-    return serve(Path(state_dir), specs, seed=int(seed), speed_hz=int(speed_hz), ready=ready)
+    return serve(Path(state_dir), specs, seed=int(seed), speed_hz=int(speed_hz),
+                 idle_exit_s=None if idle == "none" else float(idle), ready=ready)
 
 
 # ---- the client side ----
@@ -305,8 +321,9 @@ def _connect(state_dir: Path) -> _Connection | None:
 
 
 def start(state_dir: Path, specs: Sequence[SimJointSpec], *, seed: int = 1, speed_hz: int = 400_000,
-          timeout: float = START_TIMEOUT_S) -> bool:
+          idle_exit_s: float | None = DEFAULT_IDLE_EXIT_S, timeout: float = START_TIMEOUT_S) -> bool:
     """Start the service in the background unless it runs; True if this call started it.
+    `idle_exit_s`: it ends after that long without a client and with every joint at rest (None: never).
 
     Concurrent starts are safe: the service that gets the lock serves, the others exit at once,
     and every caller waits (at most `timeout` s) until the socket answers.
@@ -319,7 +336,8 @@ def start(state_dir: Path, specs: Sequence[SimJointSpec], *, seed: int = 1, spee
     with _private_file(state_dir / LOG_NAME, "ab") as log_file:
         process = subprocess.Popen(
             [sys.executable, "-m", "bioscara.sim_service", os.fspath(state_dir),
-             json.dumps(specs_to_json(specs)), str(seed), str(speed_hz)],
+             json.dumps(specs_to_json(specs)), str(seed), str(speed_hz),
+             "none" if idle_exit_s is None else repr(float(idle_exit_s))],
             stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=log_file, start_new_session=True)
     assert process.stdout is not None
     line = _read_line(process, timeout)
@@ -395,7 +413,7 @@ def _flock_within(lock: Any, timeout: float) -> None:
 
 
 class ServiceBus(Bus):
-    """The `sim:` bus: the shared simulated arm, started on first use.
+    """The `sim:` bus: the shared simulated arm, started on first use (`idle_exit_s`: see `start`).
 
     `specs` must match the running service's joints (else ConfigError: stop it first).
     """
@@ -403,12 +421,12 @@ class ServiceBus(Bus):
     scheme = "sim"
 
     def __init__(self, specs: Sequence[SimJointSpec], state_dir: Path, *, seed: int = 1,
-                 autostart: bool = True, **kwargs: Any) -> None:
+                 autostart: bool = True, idle_exit_s: float | None = DEFAULT_IDLE_EXIT_S, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self.state_dir = state_dir
         self.specs = list(specs)
         if autostart:
-            start(state_dir, specs, seed=seed, speed_hz=self.speed_hz)
+            start(state_dir, specs, seed=seed, speed_hz=self.speed_hz, idle_exit_s=idle_exit_s)
         self._connection: _Connection | None = None
         self.info = self._hello()
 

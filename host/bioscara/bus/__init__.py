@@ -39,11 +39,12 @@ def _sim(target: str, **kwargs: Any) -> Bus:
     if joints is None:
         raise ConfigError("sim: needs the arm configuration to know which joints to simulate")
     realtime = kwargs.pop("realtime", False)
+    service = {"idle_exit_s": kwargs.pop("idle_exit_s")} if "idle_exit_s" in kwargs else {}
     if target == "":
         from ..paths import default_state_dir
         from ..sim_service import ServiceBus
         kwargs.pop("port", None)
-        return ServiceBus(joints, kwargs.pop("state_dir", None) or default_state_dir(), **kwargs)
+        return ServiceBus(joints, kwargs.pop("state_dir", None) or default_state_dir(), **service, **kwargs)
     if target not in ("virtual", "realtime"):
         raise ConfigError(f"unknown simulator sim:{target}; use sim: (the shared arm), sim:virtual or sim:realtime")
     from .sim import SimBus

@@ -1,4 +1,5 @@
-"""`bioscara flash PORT --joint J1`: deploy the joint firmware onto a MicroPython board."""
+"""`bioscara flash PORT --joint j1`: deploy the joint firmware onto a MicroPython board;
+`bioscara flash --joint j1 --dry-run`: what it would deploy, without a board."""
 
 from __future__ import annotations
 
@@ -16,11 +17,12 @@ from .options import shown
 NAME = "flash"
 HELP = ("deploy the joint firmware onto a MicroPython board (mpremote): precompile, copy what changed, "
         "verify, reboot, and with --bus check the joint's version over the bus")
-USES = ("bus", "json")
+USES = ("bus", "json")  # --bus for the version check, which needs no --protocol
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("port", help="the board's serial port, e.g. /dev/ttyACM0 or COM3")
+    parser.add_argument("port", nargs="?", help="the board's serial port, e.g. /dev/ttyACM0 or COM3 "
+                        "(`bioscara ports` lists them); not needed with --dry-run")
     parser.add_argument("--joint", type=_joint, metavar="JOINT",
                         help="j1..j4: which joint the board drives; the shipped configuration of that joint "
                         "goes to /joint_config.json (not needed with --joint-config)")
@@ -29,12 +31,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "resistor...): validated as the firmware will, before the board is touched")
     parser.add_argument("--show-config", action="store_true",
                         help="only show the board's current /joint_config.json (and whether it is valid)")
-    parser.add_argument("--dry-run", action="store_true", help="show what would change; change nothing")
+    parser.add_argument("--dry-run", action="store_true",
+                        help="show what would change on the board, changing nothing; without PORT: the files "
+                        "(and sizes) that would go onto a stock Raspberry Pi Pico, the joint config validated")
     parser.add_argument("--boot-timeout", type=float, default=10.0, metavar="S",
                         help="with --bus: how long the joint may take to answer after the reboot (s; default 10)")
 
 
 def _joint(text: str) -> str:
+    """j1 or J1 -> "J1", the firmware's name (printed j1)."""
     name = text.strip().upper()
     if name not in flash.JOINTS:
         raise argparse.ArgumentTypeError(f"no joint {shown(text)}; the joints are j1, j2, j3, j4")
@@ -43,25 +48,36 @@ def _joint(text: str) -> str:
 
 def run(args: argparse.Namespace, session: Session) -> int:
     if args.show_config:
+        if args.port is None:
+            raise InvalidArgumentError("--show-config reads a board: give its serial port (`bioscara ports` lists them)")
         return _show_config(args, session)
+    if args.port is None and not args.dry_run:
+        raise InvalidArgumentError("which board? give its serial port (`bioscara ports` lists them), "
+                                   "or --dry-run to see what would be deployed")
+    if args.dry_run and args.bus:
+        raise InvalidArgumentError("--bus checks the flashed joint's version: a dry run flashes nothing to check")
     config = flash.user_joint_config(args.joint_config) if args.joint_config else None
     joint = config[1].joint if config is not None else args.joint
     if joint is None:
         raise InvalidArgumentError("which joint? give --joint j1..j4, or --joint-config FILE.json")
     if args.joint and config is not None and args.joint != joint:
         raise InvalidArgumentError(f"{args.joint_config} configures {joint.lower()}, not {args.joint.lower()}")
-    board = mpboard.open_board(args.port)
-    try:
-        plan = flash.plan(board, joint, config)
-        if not args.dry_run:
-            _apply(board, plan, session)
-    finally:
-        board.close()
+    if args.port is None:
+        plan = flash.plan_without_board(joint, config)
+    else:
+        board = mpboard.open_board(args.port)
+        try:
+            plan = flash.plan(board, joint, config)
+            if not args.dry_run:
+                _apply(board, plan, session)
+        finally:
+            board.close()
     identity = None
     if args.bus and not args.dry_run:
         identity = flash.check_identity(session.bus, joint, plan.image.address, timeout=args.boot_timeout)
-    session.emit(flash.report(plan, dry_run=args.dry_run, identity=identity),
-                 human=_render(plan, args.dry_run, identity))
+    source = args.joint_config or f"the shipped {joint.lower()} configuration"
+    session.emit(flash.report(plan, dry_run=args.dry_run, identity=identity, config_source=source),
+                 human=_render(plan, args.dry_run, identity, source))
     if identity is not None and not identity.ok:
         raise flash.FlashError("version check failed: " + "; ".join(identity.problems))
     return 0
@@ -107,24 +123,31 @@ def _apply(board: mpboard.Board, plan: flash.Plan, session: Session) -> None:
         flash.apply(board, plan, advance)
 
 
-def _render(plan: flash.Plan, dry_run: bool, identity: flash.IdentityCheck | None) -> Text:
+def _render(plan: flash.Plan, dry_run: bool, identity: flash.IdentityCheck | None, source: str) -> Text:
     out = Text()
-    out.append(f"{plan.port}: {plan.board.describe()}\n")
+    if plan.assumed:
+        out.append(f"no board given: what flashing would deploy on a stock Pico, {plan.board.describe()}; "
+                   "give PORT to compare with a board's files\n")
+    else:
+        out.append(f"{plan.port}: {plan.board.describe()}\n")
     if plan.board.installed_firmware:
-        out.append(f"installed: firmware {'.'.join(map(str, plan.board.installed_firmware))} "
-                   f"for {plan.board.installed_joint or 'no joint'}\n")
-    out.append(f"firmware {flash.FIRMWARE} for {plan.image.joint} "
+        installed = plan.board.installed_joint.lower() if plan.board.installed_joint else "no joint"
+        out.append(f"installed: firmware {'.'.join(map(str, plan.board.installed_firmware))} for {installed}\n")
+    out.append(f"firmware {flash.FIRMWARE} for {plan.image.joint.lower()} "
                f"(I2C 0x{plan.image.address:02x}), {plan.image.build}\n",
                style=None if plan.image.compiled else "yellow")
+    out.append(f"joint config {flash.CONFIG_PATH}: {source}, valid (checked as the firmware checks it at boot)\n")
     for warning in plan.warnings:
         out.append(f"warning: {warning}\n", style="yellow")
     if dry_run:
         out.append("dry run, nothing was changed; flashing would:\n")
     labels = ("add", "update", "remove") if dry_run else ("added", "updated", "removed")
+    files = plan.image.files
     for label, paths, style in zip(labels, (plan.added, plan.updated, plan.stale), ("green", "cyan", "red")):
         for path in paths:
-            out.append(f"  {label:<8} {path}\n", style=style)
-    out.append(f"  {len(plan.unchanged)} file(s) unchanged")
+            size = f"{len(files[path]):>7,} B" if path in files else ""
+            out.append(f"  {label:<8} {path:<28} {size}\n", style=style)
+    out.append(f"  {len(plan.unchanged)} file(s) unchanged; {plan.write_bytes:,} bytes to write")
     if dry_run:
         return out
     out.append("\nverified (SHA-256 of every file, import joint.app on the board); soft-reset\n")

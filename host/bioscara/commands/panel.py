@@ -13,7 +13,7 @@ from ..session import Session
 
 NAME = "panel"
 HELP = "the arm's control panel (Textual): lifecycle, homing, jog, STOP, live plot; --web serves it to a browser"
-USES = ("bus", "config")  # a full-screen panel: no --json
+USES = ("bus", "protocol", "config")  # a full-screen panel: no --json
 LOCAL = "127.0.0.1"
 
 
@@ -55,7 +55,7 @@ def open_model(session: Session, rate: float, *, threaded: bool = True):  # type
         config = replace(config, sim=replace(config.sim, realtime=True))
     bus = open_arm_bus(config)
     clock = bus.monotonic
-    return PanelModel(config, open_arm(config, bus), open_gripper(config, clock), frequency=rate,
+    return PanelModel(config, open_arm(config, bus, session.protocol), open_gripper(config, clock), frequency=rate,
                       threaded=threaded)
 
 

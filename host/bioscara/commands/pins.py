@@ -7,6 +7,7 @@ import argparse
 from rich.table import Table
 
 from .. import flash, wiring
+from ..errors import InvalidArgumentError
 from ..session import Session
 
 NAME = "pins"
@@ -26,7 +27,9 @@ def run(args: argparse.Namespace, session: Session) -> int:
     else:
         _, cfg = flash.user_joint_config(args.joint)
     rows = wiring.pin_map(cfg)
-    if args.markdown and not session.json:
+    if args.markdown and session.json:
+        raise InvalidArgumentError("--markdown or --json: one output at a time")
+    if args.markdown:
         print(wiring.markdown(cfg), end="")
         return 0
     table = Table("Pico pin", "signal", "connects to", title=f"{cfg.joint.lower()} board ({cfg.source})")

@@ -25,6 +25,7 @@ NAME = "scan"
 HELP = ("list what answers on the bus (identity, firmware, spec hash, flags) and check it against the "
         "configuration: missing, misaddressed and unexpected joints are problems (exit status 1)")
 COLUMNS = ("address", "joint", "kind", "firmware", "protocols", "spec hash", "flags", "problems")
+USES = ("bus", "config", "json")  # it reports the protocols each joint serves: no --protocol to choose one
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

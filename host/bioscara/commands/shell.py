@@ -27,7 +27,7 @@ from .options import count, positive
 
 NAME = "shell"
 HELP = "interactive console: communicator, arm lifecycle, command modes, registers (`help` inside)"
-USES = ("bus", "config")
+USES = ("bus", "protocol", "config")
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--script", metavar="FILE", help="run FILE's commands and exit; non-zero at the first "
@@ -56,7 +56,7 @@ class Context:
 def run(args: argparse.Namespace, session: Session) -> int:
     if args.script not in (None, "-"):
         script_lines(Path(args.script))  # refuses an unreadable script before the bus is opened
-    context = open_context(session.config)
+    context = open_context(session.config, session.protocol)
     shell = Shell(context, out=lambda text: session.console.print(text, markup=False, highlight=False,
                                                                   soft_wrap=True),
                   err=session.err, expert=args.expert, frequency=args.rate, priority=args.priority or None,
@@ -77,12 +77,12 @@ def run(args: argparse.Namespace, session: Session) -> int:
         close_context(shell, context, session)
 
 
-def open_context(config: ArmConfig) -> Context:
-    """Open the configured bus (the simulator in real time) and the arm."""
+def open_context(config: ArmConfig, protocol: str = "auto") -> Context:
+    """Open the configured bus (the simulator in real time) and the arm (`--protocol`)."""
     if config.bus_url.startswith("sim:"):
         config = replace(config, sim=replace(config.sim, realtime=True))
     bus = open_arm_bus(config)
-    return Context(config, bus, open_arm(config, bus))
+    return Context(config, bus, open_arm(config, bus, protocol))
 
 
 def close_context(shell: Shell, context: Context, session: Session) -> None:

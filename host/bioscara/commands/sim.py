@@ -16,6 +16,7 @@ from ..errors import InvalidArgumentError
 from ..hardware import sim_joint_specs
 from ..paths import default_state_dir
 from ..session import Session
+from .options import non_negative
 
 NAME = "sim"
 HELP = ("the shared simulated arm behind the default `sim:` bus: start it (also done by the first "
@@ -27,6 +28,9 @@ USES = ("config", "json")
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("action", nargs="?", choices=("start", "status", "stop"), default="start",
                         help="start (default: start unless running, then show it), status, stop")
+    parser.add_argument("--idle-exit", type=non_negative("min"), metavar="MIN",
+                        help="a started arm ends by itself after MIN minutes with no client connected and "
+                        "no joint moving (0: never; default: the config's sim.idle_exit_min, 15)")
     parser.add_argument("--pty", action="store_true",
                         help="instead: run a separate simulated arm in the foreground, behind a HIL bridge "
                         "pseudo-terminal (for --bus serial:PATH) and one debug console per joint")
@@ -36,7 +40,11 @@ def run(args: argparse.Namespace, session: Session) -> int:
     if args.pty:
         if args.action != "start":
             raise InvalidArgumentError(f"--pty runs an arm in the foreground; `sim {args.action}` is for the shared one")
+        if args.idle_exit is not None:
+            raise InvalidArgumentError("--idle-exit is for the shared arm; a --pty arm runs until Ctrl-C")
         return _foreground(session)
+    if args.idle_exit is not None and args.action != "start":
+        raise InvalidArgumentError(f"--idle-exit is for `sim start`, not `sim {args.action}`")
     state_dir = default_state_dir()
     if args.action == "stop":
         before = sim_service.status(state_dir)
@@ -48,14 +56,18 @@ def run(args: argparse.Namespace, session: Session) -> int:
     started = False
     if args.action == "start":
         config = session.config
+        minutes = config.sim.idle_exit_min if args.idle_exit is None else args.idle_exit
         started = sim_service.start(state_dir, sim_joint_specs(config), seed=config.sim.seed,
-                                    speed_hz=config.bus.speed_hz)
+                                    speed_hz=config.bus.speed_hz, idle_exit_s=minutes * 60.0 or None)
     status = sim_service.status(state_dir)
     if status is None:
         session.emit({"running": False}, "no simulated arm is running (`bioscara sim` starts one)")
         return 1
     data = _describe(status, started)
     session.emit(data, _render(data))
+    if args.idle_exit is not None and not started and status.get("idle_exit_s") != (args.idle_exit * 60.0 or None):
+        session.err("warning: --idle-exit applies to an arm this command starts; this one was already "
+                    "running (`bioscara sim stop` first to change it)")
     return 0
 
 
@@ -63,6 +75,7 @@ def _describe(status: dict[str, Any], started: bool) -> dict[str, Any]:
     consoles = status.get("consoles", {})
     return {"running": True, "started": started, "pid": status["pid"], "socket": status["socket"],
             "uptime_s": status["uptime_s"], "clients": status["clients"] - 1,  # not counting this one
+            "idle_exit_s": status.get("idle_exit_s"),
             "bridge": status["bridge"],
             "joints": {spec["firmware_joint"].lower(): {"address": spec["address"],
                                                         "console": consoles.get(spec["firmware_joint"])}
@@ -70,8 +83,10 @@ def _describe(status: dict[str, Any], started: bool) -> dict[str, Any]:
 
 
 def _render(data: dict[str, Any]) -> Group:
+    idle = data["idle_exit_s"]
+    ends = "" if idle is None else f", or {idle / 60:g} min without a client and with no joint moving"
     head = Text(f"simulated arm {'started' if data['started'] else 'running'}: pid {data['pid']}, "
-                f"up {data['uptime_s']:.0f} s, {data['clients']} other client(s); `bioscara sim stop` ends it")
+                f"up {data['uptime_s']:.0f} s, {data['clients']} other client(s); `bioscara sim stop` ends it{ends}")
     table = Table(box=None)
     for column in ("serves", "at", "use with"):
         table.add_column(column)
