@@ -18,6 +18,7 @@ from .v2 import ProtocolSwitch
 # addressed to the target is in progress. The v2 swap waits for it to clear.
 _RP2040_IC_STATUS = (0x40044070, 0x40048070)
 _SLV_ACTIVITY = 0x40
+_SLOW_EVERY_MASK = 3  # the console and the legacy protocol switch: every 4th main-loop iteration
 
 
 def build_motor(cfg):
@@ -99,15 +100,20 @@ def run(config_path=config.CONFIG_FILE):
     log.set_writer(stdio.write)
     debug = DebugConsole(core, stdio.read, stdio.write)
     next_ms = time.ticks_ms()
+    turn = 0
     try:
         while True:
             core.service()
-            if switch is not None:
+            turn = (turn + 1) & _SLOW_EVERY_MASK
+            # v2 serves its memory map every iteration; the legacy map only watches for a
+            # PROTOCOL request, which may wait a few milliseconds.
+            if switch is not None and (turn == 0 or switch.link is not None):
                 switch.service()
-            try:
-                debug.poll()
-            except Exception as exc:  # the console must never end the control loop
-                log.error("debug console: %r" % (exc,))
+            if turn == 0:  # a person's console: every few milliseconds is quick enough
+                try:
+                    debug.poll()
+                except Exception as exc:  # the console must never end the control loop
+                    log.error("debug console: %r" % (exc,))
             next_ms = time.ticks_add(next_ms, 1)
             if time.ticks_diff(time.ticks_ms(), next_ms) > 10:
                 next_ms = time.ticks_ms()  # fell behind (e.g. a long flash write): resynchronise

@@ -88,25 +88,27 @@ class MainLoop:
     @micropython.native
     def _refresh_caches(self):
         """Pack the HAL's values into the reply caches, each only when it changed. Work split by
-        rate: what the host reads every cycle (angle, encoder speed) every iteration, the driver
-        speed and the PID error on alternate iterations (at most 2 ms old; every call costs tens
-        of microseconds on the chip)."""
+        rate (every call costs tens of microseconds on the chip): the angle every iteration, the
+        encoder speed every second one, the driver speed and the PID error every fourth (at most
+        2 and 4 ms old)."""
         hal = self.hal
         last = self._cache_values
-        value = self._host_angle()
+        value = hal.angle_moved() + self.zero_offset  # _host_angle(), inlined
         if value != last[0]:
             last[0] = value
             self._store_f32(self._cache[ANGLEMOVED], value, ANGLE_Q)
-        value = hal.encoder_rpm()
-        if value != last[1]:
-            last[1] = value
-            self._store_f32(self._cache[GETENCODERRPM], value, RPM_Q)
-        turn = self._cache_turn
-        self._cache_turn = 5 - turn  # 2, 3, 2, ...
-        if turn == 2:
+        turn = (self._cache_turn + 1) & 3
+        self._cache_turn = turn
+        if turn & 1 == 0:
+            value = hal.encoder_rpm()
+            addr = GETENCODERRPM
+            q = RPM_Q
+            turn = 1
+        elif turn == 1:
             value = hal.driver_rpm()
             addr = GETDRIVERRPM
             q = RPM_Q
+            turn = 2
         else:
             value = hal.pid_error()
             addr = GETPIDERROR
@@ -115,6 +117,7 @@ class MainLoop:
             last[turn] = value
             self._store_f32(self._cache[addr], value, q)
 
+    @micropython.native
     def _store_f32(self, dest, value, q):
         """float32(value / 2**q) into a reply cache: packed aside, copied in one critical section."""
         scratch = self._f32_scratch

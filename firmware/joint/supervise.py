@@ -15,6 +15,7 @@ tracking detector (tracking.py, the encoder no longer following the field);
 `set_stall_detector()` switches at run time (bench, tests).
 """
 
+from .emitters import micropython
 from .fixed import muldiv
 from .protocol import (
     FLAG_BUSY, FLAG_NOTENABLED, FLAG_NOTHOMED, FLAG_STALL, HOME, MOVEANGLE, MOVESTEPS, MOVETOANGLE,
@@ -113,13 +114,19 @@ class Supervisor:
             return True
         return self.hal.driver_rpm() != 0
 
+    @micropython.native
     def _check_deadman(self):
         if self._safe_pending:  # this deadman's quick stop is braking: decided once, not per tick
             self._safe_action()
             return
-        if not self._motion_active():
+        timeout = self.watchdog_ms
+        if timeout:
+            if not self._motion_active():
+                return
+        elif self.qd_set == 0:  # the original's deadman: the velocity setpoint only
             return
-        timeout = self.watchdog_ms or self.cfg.deadman_ms
+        else:
+            timeout = self._deadman_ms
         clock = self.clock
         silent = clock.ticks_diff(clock.ticks_us(), self._last_host_us) // 1000  # from the IRQ's stamp
         if silent < timeout or not self._halt(FLAG_NOTENABLED, transactions=self._seen_transactions):

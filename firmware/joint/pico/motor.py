@@ -234,8 +234,12 @@ class PicoStepper(MotorHAL):
                 measured = (count * 25) >> 1 if count >= 0 else -((-count * 25) >> 1)
                 error = steps.position - measured
                 self._error = error
+                ramp = self._ramp
                 if error >= self._threshold or -error >= self._threshold:
-                    self._relabel(-error)
+                    # _relabel(-error), inlined for the 1 kHz path
+                    steps.position -= error
+                    steps.commanded -= error
+                    ramp.x -= error
         ramp = self._ramp
         for _ in range(ticks):
             ramp.tick()
