@@ -226,6 +226,44 @@ print("driver_rpm", hal.driver_rpm(), "flags", core.flags)
 '''
 
 
+# Which service() calls allocate on the chip (the host cycling): bytes, and what the call did.
+ALLOC = '''
+import gc, time
+from joint import app, core, debug
+from joint import protocol as P
+_service = core.JointController.service
+_SETUP = bytearray((P.SETUP, 30, 10, 0, 0))
+log = []
+st = [0, 0]
+class Done(BaseException):
+    pass
+def svc(self):
+    if st[0] == 0:
+        if self.ready:
+            self.on_frame(_SETUP, 5)
+            st[0] = 1
+        return _service(self)
+    q0 = self._q_out
+    tr = self.transactions
+    a0 = gc.mem_alloc()
+    _service(self)
+    a1 = gc.mem_alloc()
+    if a1 != a0:
+        log.append((a1 - a0, self._q_out - q0, self.transactions - tr, self._cache_turn, self.task_name))
+    st[1] += 1
+    if st[1] >= 600:
+        raise Done()
+core.JointController.service = svc
+try:
+    app.run()
+except Done:
+    pass
+print("calls", st[1], "allocating", len(log))
+for e in log[:40]:
+    print(e)
+'''
+
+
 def main() -> int:
     problem = missing()
     if problem:
@@ -244,6 +282,10 @@ def main() -> int:
         with EmulatedPico(image, plugins=chip_bench.JOINT_PLUGINS) as pico:
             if mode in ("both", "heap"):
                 print(pico.exec(HEAP.format(modules=MODULES), soft_reset=True, timeout=600))
+            if mode == "alloc":
+                for prepare in chip_bench.BEFORE_LOOP:
+                    prepare(pico)
+                print(pico.exec(ALLOC, soft_reset=True, timeout=900))
             if mode == "parts":
                 rpm = float(sys.argv[3]) if len(sys.argv) > 3 else 30.0
                 print(pico.exec(PARTS.format(rpm=rpm), soft_reset=True, timeout=900))

@@ -121,12 +121,20 @@ class Field:
     any value. CHAR and U32 fields only appear in replies.
     """
 
+    # Defaults live in the class: on the board every instance attribute costs heap.
+    unit = ""
+    lo = 0
+    hi = 0
+
     def __init__(self, name, kind, unit="", lo=0, hi=0):
         self.name = name
         self.kind = kind
-        self.unit = unit
-        self.lo = lo
-        self.hi = hi
+        if unit:
+            self.unit = unit
+        if lo:
+            self.lo = lo
+        if hi:
+            self.hi = hi
         self.code, self.size = _CODES[kind]
         if kind == F32:
             self._lo_hi16, self._lo_lo16 = _f32_halves(lo)
@@ -167,26 +175,45 @@ class Register:
     `zero_sets` is applied when the first payload byte is 0 (a current of 0 disables the joint).
     """
 
+    # Defaults live in the class and only other values in the instance: on the board every
+    # instance attribute costs heap, and most registers keep most defaults.
+    write = ()
+    read = ()
+    blocking = False
+    sets = 0
+    clears = 0
+    zero_sets = 0
+    supported = True
+    doc = ""
+    wsize = 0
+    rsize = 0
+    wfmt = "<"
+    rfmt = "<"
+
     def __init__(self, addr, name, write=(), read=(), blocking=False, sets=0, clears=0,
                  zero_sets=0, supported=True, doc=""):
         self.addr = addr
         self.name = name
-        self.write = write
-        self.read = read
-        self.blocking = blocking
-        self.sets = sets
-        self.clears = clears
-        self.zero_sets = zero_sets
-        self.supported = supported
-        self.doc = doc
-        self.wsize = 0
-        for f in write:
-            self.wsize += f.size
-        self.rsize = 0
-        for f in read:
-            self.rsize += f.size
-        self.wfmt = "<" + "".join(f.code for f in write)
-        self.rfmt = "<" + "".join(f.code for f in read)
+        if write:
+            self.write = write
+            self.wsize = sum(f.size for f in write)
+            self.wfmt = "<" + "".join(f.code for f in write)
+        if read:
+            self.read = read
+            self.rsize = sum(f.size for f in read)
+            self.rfmt = "<" + "".join(f.code for f in read)
+        if blocking:
+            self.blocking = blocking
+        if sets:
+            self.sets = sets
+        if clears:
+            self.clears = clears
+        if zero_sets:
+            self.zero_sets = zero_sets
+        if not supported:
+            self.supported = supported
+        if doc:
+            self.doc = doc
 
     @property
     def readable(self):
