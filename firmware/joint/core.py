@@ -124,6 +124,7 @@ class JointController(IrqPath, MainLoop, Handlers, Tasks, Supervisor):
         self._next_stall_ms = now
         self._stall_period_ms = int(cfg.stall.sample_time * 1000 + 0.5)
         self._next_track_ms = now
+        self._next_sample_ms = now  # the earlier of the two
         self._task = None
         self.task_name = None
         self._task_stops = 0  # the stop epoch the running task belongs to

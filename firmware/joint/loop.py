@@ -66,14 +66,23 @@ class MainLoop:
             self._step_task(now)
         if self.positioning and self.hal.position_reached():
             self.positioning = False
+        if clock.ticks_diff(now, self._next_sample_ms) >= 0:
+            self._sample_detectors(now)
+        if self.qd_set or self.watchdog_ms or self._safe_pending:  # else _check_deadman returns at once
+            self._check_deadman()
+        self._refresh_caches()
+
+    def _sample_detectors(self, now):
+        """The stall detectors at their own periods; the loop checks only the earlier deadline."""
+        clock = self.clock
         if clock.ticks_diff(now, self._next_stall_ms) >= 0:
             self._next_stall_ms = clock.ticks_add(now, self._stall_period_ms)
             self._check_stall()
         if clock.ticks_diff(now, self._next_track_ms) >= 0:
             self._next_track_ms = clock.ticks_add(now, self.track.sample_ms)
             self._check_tracking()
-        self._check_deadman()
-        self._refresh_caches()
+        stall, track = self._next_stall_ms, self._next_track_ms
+        self._next_sample_ms = stall if clock.ticks_diff(stall, track) <= 0 else track
 
     def _set_flags(self, mask):
         state = self._irq_off()
