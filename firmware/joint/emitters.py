@@ -1,6 +1,8 @@
-"""`micropython.native` under both interpreters. MicroPython's compiler handles the decorator by
-its name, so modules write `@micropython.native` after `from .emitters import micropython`; under
-CPython the decorator does nothing and the same files run as plain Python."""
+"""`micropython.native` and `micropython.viper` under both interpreters. MicroPython's compiler
+handles the decorators by their names, so modules write `@micropython.native` after
+`from .emitters import micropython`; under CPython the decorators do nothing and the same files run
+as plain Python. Viper code takes `ptr8` from here: on MicroPython the viper compiler turns
+`ptr8(buf)` into a raw byte pointer itself; under CPython it is the buffer, indexed the same way."""
 
 try:
     import micropython
@@ -9,3 +11,11 @@ except ImportError:
         @staticmethod
         def native(function):
             return function
+
+        @staticmethod
+        def viper(function):
+            return function
+
+
+def ptr8(buf):
+    return buf

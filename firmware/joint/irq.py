@@ -11,9 +11,7 @@ Every readable register's reply cache is the head of its own wire buffer, `paylo
 read writes the flags into the last byte and hands the whole buffer to the port, with no copy.
 """
 
-from array import array
-
-from .emitters import micropython
+from .emitters import micropython, ptr8
 
 from .protocol import (
     BY_ADDR, F32, FLAG_ERROR, FLAG_NOTENABLED, FLAG_STALL, HOMEOFFSET, I32, LASTERROR, MAX_FRAME,
@@ -30,35 +28,107 @@ except ImportError:
 QUEUE_SLOTS = const(16)  # a power of two, so slot = counter % slots survives counter wrap
 # A slot: the frame, then what held when it was accepted: the flags right after it, the halt epoch
 # and the stop epoch (8 bits each; a slot lives for about a millisecond).
-SLOT = MAX_FRAME + 3
-SLOT_FLAGS = MAX_FRAME
-SLOT_HALTS = MAX_FRAME + 1
-SLOT_STOPS = MAX_FRAME + 2
+SLOT = const(8)
+SLOT_FLAGS = const(5)
+SLOT_HALTS = const(6)
+SLOT_STOPS = const(7)
 MOTION_BLOCKED = FLAG_STALL | FLAG_NOTENABLED
 # IRQ counters wrap here: +1 must stay a small int on 32-bit ports (largest 2**30 - 1) even before
 # the mask, or the hard IRQ would allocate a long int.
 COUNTER_MASK = const(0x1FFFFFFF)
 
-# How a register's payload is checked (the `_check` table).
-CHECK_BYTES = const(0)  # every field U8 (or none): each byte within [_lo, _hi] at addr*4 + i
-CHECK_F32 = const(1)  # one F32 field: finite, |value| within the halves at addr*4 in _f32
-CHECK_U16 = const(2)  # one U16 field: within [_lo16, _hi16]
+# The protocol's numbers the viper code compares with, as constants of this module (viper cannot
+# compare with another module's names); checked against protocol.py below.
+_R_NONE = const(0)
+_R_LENGTH = const(3)
+_R_VALUE = const(4)
+_R_BUSY = const(5)
+_R_QUEUE_FULL = const(6)
+_R_DISABLED = const(7)
+_FLAG_STALL = const(0x01)
+_HOMEOFFSET = const(0x2E)
+_STOP = const(0x29)
+if ((_R_NONE, _R_LENGTH, _R_VALUE, _R_BUSY, _R_QUEUE_FULL, _R_DISABLED, _FLAG_STALL, _HOMEOFFSET, _STOP,
+     SLOT_FLAGS, SLOT)
+        != (REJECT_NONE, REJECT_LENGTH, REJECT_VALUE, REJECT_BUSY, REJECT_QUEUE_FULL, REJECT_DISABLED,
+            FLAG_STALL, HOMEOFFSET, STOP, MAX_FRAME, MAX_FRAME + 3)):
+    raise ImportError("irq.py constants differ from protocol.py")
+
+# The frame table (`_ftab`, one bytearray so viper code reaches it through one pointer): by register
+# address, the reject reason whatever the payload (or REJECT_NONE), the frame length a payload
+# needs, how the payload is checked and the spec's flag effects; then, for registers below
+# _CHECKED, the payload limits.
+_PRE = const(0)
+_WLEN = const(256)
+_CHECK = const(512)
+_SETS = const(768)
+_CLEARS = const(1024)
+_ZERO_SETS = const(1280)
+_BLOCKS = const(1536)
+_LO = const(1792)  # CHECK_BYTES: payload byte i within [_LO, _HI] at addr*4 + i
+_HI = const(2048)
+_LIMITS = const(2304)  # CHECK_F32: the |value| limits as 16-bit halves (low high16, low low16,
+#                        high high16, high low16), little-endian, at addr*8; CHECK_U16: low, high
+_CHECKED = const(64)
+_FTAB_SIZE = const(2816)
+
+CHECK_BYTES = const(0)  # every field U8
+CHECK_F32 = const(1)  # one F32 field: finite, |value| within the limits
+CHECK_U16 = const(2)  # one U16 field
 CHECK_ANY = const(3)  # one I32 field: any value
-CHECK_SPEC = const(4)  # any other layout: Register.check_write itself
 
 
 def _payload_check(reg):
-    """The check kind for a register's write fields."""
+    """The check kind for a register's write fields; ValueError if the tables cannot check them."""
     kinds = [f.kind for f in reg.write]
-    if all(k == U8 for k in kinds) and reg.wsize <= 4:
-        return CHECK_BYTES
-    if kinds == [F32]:
-        return CHECK_F32
-    if kinds == [U16]:
-        return CHECK_U16
-    if kinds == [I32]:
-        return CHECK_ANY
-    return CHECK_SPEC
+    if reg.addr < _CHECKED:
+        if all(k == U8 for k in kinds) and len(kinds) <= 4:
+            return CHECK_BYTES
+        if kinds == [F32]:
+            return CHECK_F32
+        if kinds == [U16]:
+            return CHECK_U16
+        if kinds == [I32]:
+            return CHECK_ANY
+    raise ValueError("the IRQ frame tables cannot check register %s" % reg.name)
+
+
+def _put16(table, off, value):
+    table[off] = value & 0xFF
+    table[off + 1] = value >> 8
+
+
+def frame_table():
+    """The frame table (layout above) for the protocol's registers."""
+    t = bytearray(_FTAB_SIZE)
+    for addr in range(256):
+        reg = BY_ADDR[addr]
+        if reg is None:
+            t[_PRE + addr] = REJECT_UNKNOWN_REGISTER
+        elif not reg.supported:
+            t[_PRE + addr] = REJECT_UNSUPPORTED
+        elif reg.wsize == 0:
+            t[_PRE + addr] = REJECT_LENGTH
+        else:
+            kind = _payload_check(reg)
+            t[_WLEN + addr] = 1 + reg.wsize
+            t[_CHECK + addr] = kind
+            t[_SETS + addr] = reg.sets
+            t[_CLEARS + addr] = reg.clears
+            t[_ZERO_SETS + addr] = reg.zero_sets
+            t[_BLOCKS + addr] = reg.blocking
+            if kind == CHECK_BYTES:
+                for i, f in enumerate(reg.write):
+                    t[_LO + addr * 4 + i] = f.lo
+                    t[_HI + addr * 4 + i] = f.hi
+            elif kind == CHECK_F32:
+                f = reg.write[0]
+                for i, half in enumerate((f._lo_hi16, f._lo_lo16, f._hi_hi16, f._hi_lo16)):
+                    _put16(t, _LIMITS + addr * 8 + 2 * i, half)
+            elif kind == CHECK_U16:
+                _put16(t, _LIMITS + addr * 8, reg.write[0].lo)
+                _put16(t, _LIMITS + addr * 8 + 2, reg.write[0].hi)
+    return t
 
 
 class IrqPath:
@@ -83,50 +153,7 @@ class IrqPath:
                 self._wire_tails[addr] = [view[i:] for i in range(n + 1)]
         flags_only = memoryview(bytearray(1))
         self._flags_tails = [flags_only]
-        # Frame verdicts by register: the reject reason whatever the payload (or REJECT_NONE),
-        # the frame length a payload needs, and the spec's flag effects.
-        self._pre = bytearray(256)
-        self._wlen = bytearray(256)
-        self._check = bytearray(256)
-        self._lo = bytearray(1024)
-        self._hi = bytearray(1024)
-        self._f32 = array("H", [0] * 1024)
-        self._sets = bytearray(256)
-        self._clears = bytearray(256)
-        self._zero_sets = bytearray(256)
-        self._blocks = bytearray(256)
-        for addr in range(256):
-            reg = BY_ADDR[addr]
-            if reg is None:
-                self._pre[addr] = REJECT_UNKNOWN_REGISTER
-                continue
-            if not reg.supported:
-                self._pre[addr] = REJECT_UNSUPPORTED
-                continue
-            if reg.wsize == 0:
-                self._pre[addr] = REJECT_LENGTH
-                continue
-            self._wlen[addr] = 1 + reg.wsize
-            kind = _payload_check(reg)
-            self._check[addr] = kind
-            base = addr * 4
-            if kind == CHECK_BYTES:
-                for i, f in enumerate(reg.write):
-                    self._lo[base + i] = f.lo
-                    self._hi[base + i] = f.hi
-            elif kind == CHECK_F32:
-                f = reg.write[0]
-                self._f32[base] = f._lo_hi16
-                self._f32[base + 1] = f._lo_lo16
-                self._f32[base + 2] = f._hi_hi16
-                self._f32[base + 3] = f._hi_lo16
-            elif kind == CHECK_U16:
-                self._f32[base] = reg.write[0].lo
-                self._f32[base + 1] = reg.write[0].hi
-            self._sets[addr] = reg.sets
-            self._clears[addr] = reg.clears
-            self._zero_sets[addr] = reg.zero_sets
-            self._blocks[addr] = reg.blocking
+        self._ftab = frame_table()
         self._reply_tails = self._wire_tails[PING]
         self._reply_err = 0
 
@@ -135,99 +162,103 @@ class IrqPath:
         self.host_us = self._ticks_us()  # when: the deadman counts from here, not from the loop
         self.transactions = (self.transactions + 1) & COUNTER_MASK
 
-    @micropython.native
-    def _payload_reason(self, addr, frame, n):
-        """REJECT_NONE if the n-byte frame is a valid write of register `addr`, else why not."""
-        reason = self._pre[addr]
-        if reason != REJECT_NONE:
-            return reason
-        if n != self._wlen[addr]:
-            return REJECT_LENGTH
-        kind = self._check[addr]
-        base = addr * 4
-        if kind == CHECK_BYTES:
-            lo = self._lo
-            hi = self._hi
-            for i in range(n - 1):
-                b = frame[1 + i]
-                if b < lo[base + i] or b > hi[base + i]:
-                    return REJECT_VALUE
-            return REJECT_NONE
-        if kind == CHECK_F32:
-            b3 = frame[4] & 0x7F
-            b2 = frame[3]
-            if b3 == 0x7F and b2 & 0x80:
-                return REJECT_VALUE  # NaN or infinity
-            hi16 = (b3 << 8) | b2
-            lo16 = (frame[2] << 8) | frame[1]
-            t = self._f32
-            if hi16 < t[base] or (hi16 == t[base] and lo16 < t[base + 1]):
-                return REJECT_VALUE
-            if hi16 > t[base + 2] or (hi16 == t[base + 2] and lo16 > t[base + 3]):
-                return REJECT_VALUE
-            return REJECT_NONE
-        if kind == CHECK_U16:
-            value = frame[1] | (frame[2] << 8)
-            if value < self._f32[base] or value > self._f32[base + 1]:
-                return REJECT_VALUE
-            return REJECT_NONE
-        if kind == CHECK_ANY:
-            return REJECT_NONE
-        return BY_ADDR[addr].check_write(frame, 1, n - 1)
-
-    @micropython.native
-    def on_frame(self, frame, n):
+    @micropython.viper
+    def on_frame(self, frame, n: int):
         """A write of n bytes (register + payload) ended. `frame` holds at most MAX_FRAME bytes."""
         if n == 0:
             return  # address probe (bus scan)
-        addr = frame[0]
+        f = ptr8(frame)
+        t = ptr8(self._ftab)
+        addr = f[0]
         if n == 1:
             tails = self._wire_tails[addr]
-            if tails is not None:
+            if tails:
                 self._reply_tails = tails
                 self._reply_err = 0
                 return
-        reason = self._payload_reason(addr, frame, n)
-        if reason == REJECT_NONE:
+        # The payload against the spec, as Register.check_write judges it.
+        reason = t[_PRE + addr]
+        if reason == _R_NONE and n != t[_WLEN + addr]:
+            reason = _R_LENGTH
+        if reason == _R_NONE:
+            kind = t[_CHECK + addr]
+            if kind == CHECK_BYTES:
+                lo = _LO + addr * 4 - 1
+                hi = _HI + addr * 4 - 1
+                i = 1
+                while i < n:
+                    if f[i] < t[lo + i] or f[i] > t[hi + i]:
+                        reason = _R_VALUE
+                    i += 1
+            elif kind == CHECK_F32:
+                o = _LIMITS + addr * 8
+                b3 = f[4] & 0x7F
+                b2 = f[3]
+                hi16 = (b3 << 8) | b2
+                lo16 = (f[2] << 8) | f[1]
+                low_hi = t[o] | (t[o + 1] << 8)
+                low_lo = t[o + 2] | (t[o + 3] << 8)
+                high_hi = t[o + 4] | (t[o + 5] << 8)
+                high_lo = t[o + 6] | (t[o + 7] << 8)
+                if b3 == 0x7F and b2 & 0x80:
+                    reason = _R_VALUE  # NaN or infinity
+                elif hi16 < low_hi or (hi16 == low_hi and lo16 < low_lo):
+                    reason = _R_VALUE
+                elif hi16 > high_hi or (hi16 == high_hi and lo16 > high_lo):
+                    reason = _R_VALUE
+            elif kind == CHECK_U16:
+                o = _LIMITS + addr * 8
+                value = f[1] | (f[2] << 8)
+                if value < (t[o] | (t[o + 1] << 8)) or value > (t[o + 2] | (t[o + 3] << 8)):
+                    reason = _R_VALUE
+        # Then the joint's state.
+        if reason == _R_NONE:
             if self.disabled:
-                reason = REJECT_DISABLED
-            elif self._blocks[addr] and self._blocking_live():
-                reason = REJECT_BUSY
-            elif (addr != HOMEOFFSET and addr != STOP
-                  and ((self._q_in - self._q_out) & COUNTER_MASK) >= QUEUE_SLOTS):
-                reason = REJECT_QUEUE_FULL
+                reason = _R_DISABLED
+            elif t[_BLOCKS + addr] and bool(self._blocking_live()):
+                reason = _R_BUSY
+            elif (addr != _HOMEOFFSET and addr != _STOP
+                  and ((int(self._q_in) - int(self._q_out)) & COUNTER_MASK) >= QUEUE_SLOTS):
+                reason = _R_QUEUE_FULL
             else:
-                reason = self._refusal(addr, frame)  # core.py: motion in this state, HOME limits
-        if reason != REJECT_NONE:
+                reason = int(self._refusal(addr, frame))  # supervise.py: motion in this state, HOME limits
+        if reason != _R_NONE:
             self._reject(addr, reason)
             return
-        flags = (self.flags | self._sets[addr]) & ~self._clears[addr]
-        if frame[1] == 0:
-            flags |= self._zero_sets[addr]
+        clears = t[_CLEARS + addr]
+        flags = (int(self.flags) | t[_SETS + addr]) & (0xFF ^ clears)
+        if f[1] == 0:
+            flags |= t[_ZERO_SETS + addr]
         self.flags = flags
-        if self._clears[addr] & FLAG_STALL:
-            self.stall_rearms = (self.stall_rearms + 1) & 0xFF
-        if addr == STOP:
+        if clears & _FLAG_STALL:
+            self.stall_rearms = (int(self.stall_rearms) + 1) & 0xFF
+        if addr == _STOP:
             # Immediate, as in the original's ISR: cancels the running blocking command and any
             # motion still queued; the main loop commands 0 RPM next.
-            self.stops = (self.stops + 1) & 0xFF
-            self.halts = (self.halts + 1) & 0xFF
-        elif addr == HOMEOFFSET:
-            cache = self._cache[HOMEOFFSET]
-            for i in range(4):
-                cache[i] = frame[1 + i]
+            self.stops = (int(self.stops) + 1) & 0xFF
+            self.halts = (int(self.halts) + 1) & 0xFF
+        elif addr == _HOMEOFFSET:
+            cache = ptr8(self._cache[_HOMEOFFSET])
+            cache[0] = f[1]
+            cache[1] = f[2]
+            cache[2] = f[3]
+            cache[3] = f[4]
         else:
-            base = (self._q_in % QUEUE_SLOTS) * SLOT
-            queue = self._queue
-            for i in range(n):
-                queue[base + i] = frame[i]
+            q_in = int(self._q_in)
+            base = (q_in & (QUEUE_SLOTS - 1)) * SLOT
+            queue = ptr8(self._queue)
+            i = 0
+            while i < n:
+                queue[base + i] = f[i]
+                i += 1
+            stops = int(self.stops)
             queue[base + SLOT_FLAGS] = flags
-            queue[base + SLOT_HALTS] = self.halts
-            queue[base + SLOT_STOPS] = self.stops
-            if self._blocks[addr]:
-                self._blocking_stops = self.stops
-                self._blocking_in = (self._blocking_in + 1) & COUNTER_MASK
-            self._q_in = (self._q_in + 1) & COUNTER_MASK
+            queue[base + SLOT_HALTS] = int(self.halts)
+            queue[base + SLOT_STOPS] = stops
+            if t[_BLOCKS + addr]:
+                self._blocking_stops = stops
+                self._blocking_in = (int(self._blocking_in) + 1) & COUNTER_MASK
+            self._q_in = (q_in + 1) & COUNTER_MASK
         self._reply_tails = self._flags_tails
         self._reply_err = 0
 
