@@ -18,9 +18,8 @@ still pending from the write before it.
   END_READ closes the transaction.
 """
 
-from .emitters import micropython
+from .emitters import micropython, ptr8
 
-from .irq import COUNTER_MASK
 from .protocol import MAX_FRAME
 
 try:
@@ -38,6 +37,10 @@ IRQ_END_WRITE = const(32)
 IRQ_ALL = const(63)
 TRIGGER = const(60)  # READ_REQ | WRITE_REQ | END_READ | END_WRITE
 _CHUNK = const(16)  # rp2 RX FIFO depth
+COUNTER_MASK = const(0x1FFFFFFF)  # irq.COUNTER_MASK (viper needs this module's constants)
+_MAX_FRAME = const(5)
+if _MAX_FRAME != MAX_FRAME:
+    raise ImportError("i2c_target.py: MAX_FRAME differs from protocol.py")
 
 
 class I2CTargetAdapter:
@@ -73,50 +76,54 @@ class I2CTargetAdapter:
     def deinit(self):
         self._target.irq(None, trigger=0, hard=True)
 
-    @micropython.native
+    @micropython.viper
     def _irq(self, target):
         # The events in the order of their urgency: a READ_REQ holds SCL until it is answered.
-        event = self._events.flags()  # one event per call
+        event = int(self._events.flags())  # one event per call
         if event == IRQ_READ_REQ:
-            pos = self._reply_pos
+            pos = int(self._reply_pos)
             if pos < 0:  # the read's first request: the selected reply, its flags as of now
                 core = self._core
                 tails = core._reply_tails
-                n = len(tails) - 1
-                tails[0][n] = core.flags | core._reply_err
+                n = int(len(tails)) - 1
+                wire = ptr8(tails[0])
+                wire[n] = int(core.flags) | int(core._reply_err)
                 self._tails = tails
                 self._reply_len = n + 1
                 pos = 0
-            if pos < self._reply_len:
+            if pos < int(self._reply_len):
                 if self._whole:
-                    self._reply_pos = pos + target.write(self._tails[pos])
+                    self._reply_pos = pos + int(target.write(self._tails[pos]))
                 else:
-                    self._one[0] = self._tails[0][pos]
-                    self._reply_pos = pos + target.write(self._one)
+                    one = ptr8(self._one)
+                    one[0] = int(self._tails[0][pos])
+                    self._reply_pos = pos + int(target.write(self._one))
             else:
                 self._reply_pos = pos
                 target.write(self._pad)
             return
         if event == IRQ_WRITE_REQ:
-            length = self._frame_len
-            self._frame_len = length + target.readinto(self._rx_at[length if length < MAX_FRAME else MAX_FRAME])
+            length = int(self._frame_len)
+            self._frame_len = length + int(target.readinto(self._rx_at[length if length < _MAX_FRAME else _MAX_FRAME]))
             return
         core = self._core
         if event == IRQ_END_WRITE:
             # END_WRITE drains too: rp2 handles a repeated START before the RX data that came with
             # it, so the last bytes of a command can still be in the FIFO (chip/README.md).
-            length = self._frame_len
-            length += target.readinto(self._rx_at[length if length < MAX_FRAME else MAX_FRAME])
+            length = int(self._frame_len)
+            length += int(target.readinto(self._rx_at[length if length < _MAX_FRAME else _MAX_FRAME]))
             self._frame_len = 0
-            tails = None
-            if length == 1:
-                tails = self._wire_tails[self._frame[0]]
-            if tails is not None:  # a register selected for reading: on_frame's first case, inlined
-                core._reply_tails = tails
-                core._reply_err = 0
-            else:
+            selected = 0
+            if length == 1:  # a register selected for reading: on_frame's first case, inlined
+                frame = ptr8(self._frame)
+                selection = self._wire_tails[frame[0]]
+                if selection:
+                    core._reply_tails = selection
+                    core._reply_err = 0
+                    selected = 1
+            if not selected:
                 self._on_frame(self._frame, length)
         else:  # END_READ
             self._reply_pos = -1
         core.host_us = self._ticks_us()  # host_seen(), inlined: the deadman counts from here
-        core.transactions = (core.transactions + 1) & COUNTER_MASK
+        core.transactions = (int(core.transactions) + 1) & COUNTER_MASK
