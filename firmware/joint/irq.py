@@ -15,8 +15,9 @@ from .emitters import micropython, ptr8
 
 from .protocol import (
     BY_ADDR, F32, FLAG_ERROR, FLAG_NOTENABLED, FLAG_STALL, HOMEOFFSET, I32, LASTERROR, MAX_FRAME,
-    PING, REJECT_BUSY, REJECT_DISABLED, REJECT_LENGTH, REJECT_NONE, REJECT_QUEUE_FULL,
-    REJECT_UNKNOWN_REGISTER, REJECT_UNSUPPORTED, REJECT_VALUE, STOP, U8, U16,
+    HOME, MOVEANGLE, MOVESTEPS, MOVETOANGLE, PING, REJECT_BUSY, REJECT_DISABLED,
+    REJECT_HOMING_SENSITIVITY, REJECT_LENGTH, REJECT_NONE, REJECT_NOT_ENABLED, REJECT_QUEUE_FULL,
+    REJECT_STALLED, REJECT_UNKNOWN_REGISTER, REJECT_UNSUPPORTED, REJECT_VALUE, SETRPM, STOP, U8, U16,
 )
 
 try:
@@ -46,12 +47,18 @@ _R_BUSY = const(5)
 _R_QUEUE_FULL = const(6)
 _R_DISABLED = const(7)
 _FLAG_STALL = const(0x01)
+_R_NOT_ENABLED = const(8)
+_R_STALLED = const(9)
+_R_HOMING_SENSITIVITY = const(10)
+_FLAG_NOTENABLED = const(0x08)
 _HOMEOFFSET = const(0x2E)
 _STOP = const(0x29)
-if ((_R_NONE, _R_LENGTH, _R_VALUE, _R_BUSY, _R_QUEUE_FULL, _R_DISABLED, _FLAG_STALL, _HOMEOFFSET, _STOP,
-     SLOT_FLAGS, SLOT)
+_SETRPM = const(0x11)
+if ((_R_NONE, _R_LENGTH, _R_VALUE, _R_BUSY, _R_QUEUE_FULL, _R_DISABLED, _R_NOT_ENABLED, _R_STALLED,
+     _R_HOMING_SENSITIVITY, _FLAG_STALL, _FLAG_NOTENABLED, _HOMEOFFSET, _STOP, _SETRPM, SLOT_FLAGS, SLOT)
         != (REJECT_NONE, REJECT_LENGTH, REJECT_VALUE, REJECT_BUSY, REJECT_QUEUE_FULL, REJECT_DISABLED,
-            FLAG_STALL, HOMEOFFSET, STOP, MAX_FRAME, MAX_FRAME + 3)):
+            REJECT_NOT_ENABLED, REJECT_STALLED, REJECT_HOMING_SENSITIVITY, FLAG_STALL, FLAG_NOTENABLED,
+            HOMEOFFSET, STOP, SETRPM, MAX_FRAME, MAX_FRAME + 3)):
     raise ImportError("irq.py constants differ from protocol.py")
 
 # The frame table (`_ftab`, one bytearray so viper code reaches it through one pointer): by register
@@ -69,8 +76,11 @@ _LO = const(1792)  # CHECK_BYTES: payload byte i within [_LO, _HI] at addr*4 + i
 _HI = const(2048)
 _LIMITS = const(2304)  # CHECK_F32: the |value| limits as 16-bit halves (low high16, low low16,
 #                        high high16, high low16), little-endian, at addr*8; CHECK_U16: low, high
+_REFUSE = const(2816)  # what the joint's state may refuse: _MOTION or _HOMING
 _CHECKED = const(64)
-_FTAB_SIZE = const(2816)
+_FTAB_SIZE = const(3072)
+_MOTION = const(1)  # refused while stalled or not enabled (SETRPM: unless 0 rpm)
+_HOMING = const(2)  # refused at or below the homing sensitivity noise floor
 
 CHECK_BYTES = const(0)  # every field U8
 CHECK_F32 = const(1)  # one F32 field: finite, |value| within the limits
@@ -117,6 +127,10 @@ def frame_table():
             t[_CLEARS + addr] = reg.clears
             t[_ZERO_SETS + addr] = reg.zero_sets
             t[_BLOCKS + addr] = reg.blocking
+            if addr in (SETRPM, MOVETOANGLE, MOVEANGLE, MOVESTEPS):
+                t[_REFUSE + addr] = _MOTION
+            elif addr == HOME:
+                t[_REFUSE + addr] = _HOMING
             if kind == CHECK_BYTES:
                 for i, f in enumerate(reg.write):
                     t[_LO + addr * 4 + i] = f.lo
@@ -221,7 +235,20 @@ class IrqPath:
                   and ((int(self._q_in) - int(self._q_out)) & COUNTER_MASK) >= QUEUE_SLOTS):
                 reason = _R_QUEUE_FULL
             else:
-                reason = int(self._refusal(addr, frame))  # supervise.py: motion in this state, HOME limits
+                # What the joint's state refuses: motion while stalled or not enabled (0 rpm
+                # always goes through), HOME at or below the sensitivity noise floor.
+                refuse = t[_REFUSE + addr]
+                if refuse == _HOMING:
+                    floor = int(self._homing_floor) + ((f[2] * int(self._homing_floor_q)) >> 10)
+                    if f[3] <= floor:
+                        reason = _R_HOMING_SENSITIVITY
+                elif refuse == _MOTION:
+                    if addr != _SETRPM or f[1] | f[2] | f[3] | (f[4] & 0x7F):
+                        flags = int(self.flags)
+                        if flags & _FLAG_STALL:
+                            reason = _R_STALLED
+                        elif flags & _FLAG_NOTENABLED:
+                            reason = _R_NOT_ENABLED
         if reason != _R_NONE:
             self._reject(addr, reason)
             return
