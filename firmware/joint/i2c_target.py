@@ -20,6 +20,7 @@ still pending from the write before it.
 
 from .emitters import micropython, ptr8
 
+from .irq import FTAB_WLEN
 from .protocol import MAX_FRAME
 
 try:
@@ -39,8 +40,13 @@ TRIGGER = const(60)  # READ_REQ | WRITE_REQ | END_READ | END_WRITE
 _CHUNK = const(16)  # rp2 RX FIFO depth
 COUNTER_MASK = const(0x1FFFFFFF)  # irq.COUNTER_MASK (viper needs this module's constants)
 _MAX_FRAME = const(5)
-if _MAX_FRAME != MAX_FRAME:
-    raise ImportError("i2c_target.py: MAX_FRAME differs from protocol.py")
+_WLEN = const(256)  # where irq.py's frame table keeps each register's command frame length
+if _MAX_FRAME != MAX_FRAME or _WLEN != FTAB_WLEN:
+    raise ImportError("i2c_target.py: constants differ from protocol.py / irq.py")
+
+
+def _never():
+    return False
 
 
 class I2CTargetAdapter:
@@ -48,9 +54,16 @@ class I2CTargetAdapter:
 
     `whole_reply_writes=False` hands `write()` one byte at a time, for ports whose `write()`
     reports 1 even when it queued more (alif).
+
+    `bus_active()` is true while a transaction addressed to the target is in progress (the RP2040's
+    activity bit, app.bus_activity_probe). The rp2 driver reads its interrupt status once per
+    interrupt: when a STOP is serviced late, after the next transaction's START and first byte, it
+    ends that transaction's write (END_WRITE) after its first bytes. A command frame that ends
+    short while the bus is still active is therefore kept open: the rest of it follows, and a read
+    (repeated START) closes it as it is.
     """
 
-    def __init__(self, core, target, whole_reply_writes=True):
+    def __init__(self, core, target, whole_reply_writes=True, bus_active=None):
         self._core = core
         self._target = target
         self._whole = whole_reply_writes
@@ -68,6 +81,8 @@ class I2CTargetAdapter:
         self._reply_pos = -1  # -1: no read in progress
         # Bound methods made once: looking them up in the IRQ would walk the core's mixins.
         self._on_frame = core.on_frame
+        self._ftab = core._ftab
+        self._bus_active = bus_active or _never
         self._wire_tails = core._wire_tails
         self._ticks_us = core._ticks_us
         self._handler = self._irq
@@ -83,6 +98,10 @@ class I2CTargetAdapter:
         if event == IRQ_READ_REQ:
             pos = int(self._reply_pos)
             if pos < 0:  # the read's first request: the selected reply, its flags as of now
+                length = int(self._frame_len)
+                if length:  # a frame kept open (see the class docstring) ends here
+                    self._frame_len = 0
+                    self._on_frame(self._frame, length)
                 core = self._core
                 tails = core._reply_tails
                 n = int(len(tails)) - 1
@@ -112,10 +131,16 @@ class I2CTargetAdapter:
             # it, so the last bytes of a command can still be in the FIFO (chip/README.md).
             length = int(self._frame_len)
             length += int(target.readinto(self._rx_at[length if length < _MAX_FRAME else _MAX_FRAME]))
+            frame = ptr8(self._frame)
+            if length:
+                table = ptr8(self._ftab)
+                if length < table[_WLEN + frame[0]]:
+                    if self._bus_active():
+                        self._frame_len = length  # a command cut short by the driver: its rest follows
+                        return
             self._frame_len = 0
             selected = 0
             if length == 1:  # a register selected for reading: on_frame's first case, inlined
-                frame = ptr8(self._frame)
                 selection = self._wire_tails[frame[0]]
                 if selection:
                     core._reply_tails = selection

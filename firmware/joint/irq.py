@@ -67,6 +67,7 @@ if ((_R_NONE, _R_LENGTH, _R_VALUE, _R_BUSY, _R_QUEUE_FULL, _R_DISABLED, _R_NOT_E
 # _CHECKED, the payload limits.
 _PRE = const(0)
 _WLEN = const(256)
+FTAB_WLEN = const(256)  # for i2c_target.py
 _CHECK = const(512)
 _SETS = const(768)
 _CLEARS = const(1024)

@@ -9,6 +9,7 @@ import sys
 
 from joint import protocol as P
 from joint.sim.i2c_target import FakeI2CTarget
+from joint.i2c_target import I2CTargetAdapter
 from harness import Rig
 
 MICROPYTHON = sys.implementation.name == "micropython"
@@ -270,3 +271,84 @@ def test_the_irq_frame_checks_give_the_spec_verdict_for_every_register():
             rig.xfer(bytes([P.STOP, 0]), 1)  # cancels what was accepted, so the next frame is judged alone
             rig.run_ms(1)
     rig.assert_handler_alive()
+
+
+class Rp2Events:
+    """machine.I2CTarget as the rp2 driver drives a handler, one event at a time, with the bus
+    activity bit under the test's control: for event orders the simulated bus never produces."""
+
+    def __init__(self):
+        self.event = 0
+        self.rx = bytearray(16)
+        self.rx_len = 0
+        self.sent = bytearray()
+        self.active = True
+        self.handler = None
+
+    def irq(self, handler=None, trigger=None, hard=False):
+        self.handler = handler
+        return self
+
+    def flags(self):
+        return self.event
+
+    def readinto(self, buf):
+        n = self.rx_len
+        buf[:n] = self.rx[:n]
+        self.rx_len = 0
+        return n
+
+    def write(self, buf):
+        self.sent.extend(buf)
+        return len(buf)
+
+    def fire(self, event, data=b""):
+        self.rx[:len(data)] = data
+        self.rx_len = len(data)
+        self.event = event
+        self.handler(self)
+
+
+def _rp2_rig():
+    rig = Rig()
+    target = Rp2Events()
+    rig.adapter.deinit()
+    adapter = I2CTargetAdapter(rig.core, target, True, lambda: target.active)
+    return rig, target, adapter
+
+
+def test_a_command_the_rp2_driver_ends_early_is_kept_whole():
+    """A STOP serviced after the next START and first byte makes the rp2 driver end that write
+    early (chip/README.md): a short command frame while the bus is still active stays open."""
+    rig, target, adapter = _rp2_rig()
+    setup = bytearray([P.SETUP]) + P.register("SETUP").encode(20, 20, 0, 0)
+    rig.core.on_frame(setup, len(setup))
+    rig.run_ms(1)
+    rejects = rig.core.rejects
+    payload = P.register("SETRPM").encode(12.5)
+    target.fire(WQ, bytes([P.SETRPM]))
+    target.fire(E_W)  # the late STOP of the transaction before
+    target.fire(WQ, payload)
+    target.fire(E_W)  # the repeated START
+    target.fire(RQ)
+    target.fire(RQ)
+    target.fire(E_R)
+    assert rig.core.rejects == rejects and not target.sent[0] & P.FLAG_ERROR, target.sent
+    rig.run_ms(1)
+    assert ("set_rpm", 12.5) in rig.motor.calls
+
+
+def test_a_short_command_is_rejected_at_the_read_or_at_stop():
+    rig, target, adapter = _rp2_rig()
+    target.fire(WQ, bytes([P.SETRPM]))
+    target.fire(E_W)  # repeated START: kept open while the bus is active ...
+    target.fire(RQ)  # ... and judged when the read begins
+    assert target.sent[0] & P.FLAG_ERROR
+    assert rig.core.cached_reply(P.LASTERROR)[0] == P.REJECT_LENGTH
+    target.fire(RQ)
+    target.fire(E_R)
+    target.active = False
+    target.fire(WQ, bytes([P.SETRPM]))
+    before = rig.core.rejects
+    target.fire(E_W)  # STOP, bus idle: judged at once
+    assert rig.core.rejects == before + 1
