@@ -20,7 +20,7 @@ still pending from the write before it.
 
 from .emitters import micropython, ptr8
 
-from .irq import FTAB_WLEN
+from .irq import FTAB_WLEN, REGISTER_SPACE
 from .protocol import MAX_FRAME
 
 try:
@@ -40,8 +40,10 @@ TRIGGER = const(60)  # READ_REQ | WRITE_REQ | END_READ | END_WRITE
 _CHUNK = const(16)  # rp2 RX FIFO depth
 COUNTER_MASK = const(0x1FFFFFFF)  # irq.COUNTER_MASK (viper needs this module's constants)
 _MAX_FRAME = const(5)
-_WLEN = const(256)  # where irq.py's frame table keeps each register's command frame length
-if _MAX_FRAME != MAX_FRAME or _WLEN != FTAB_WLEN:
+_WLEN = const(64)  # where irq.py's frame table keeps each register's command frame length
+_REGISTERS = const(64)  # every register address is below this
+_FRAME_OPEN = const(-2)  # _reply_pos: no read in progress, a frame kept open
+if _MAX_FRAME != MAX_FRAME or _WLEN != FTAB_WLEN or _REGISTERS != REGISTER_SPACE:
     raise ImportError("i2c_target.py: constants differ from protocol.py / irq.py")
 
 
@@ -98,8 +100,8 @@ class I2CTargetAdapter:
         if event == IRQ_READ_REQ:
             pos = int(self._reply_pos)
             if pos < 0:  # the read's first request: the selected reply, its flags as of now
-                length = int(self._frame_len)
-                if length:  # a frame kept open (see the class docstring) ends here
+                if pos == _FRAME_OPEN:  # a frame kept open (see the class docstring) ends here
+                    length = int(self._frame_len)
                     self._frame_len = 0
                     self._on_frame(self._frame, length)
                 core = self._core
@@ -123,7 +125,8 @@ class I2CTargetAdapter:
             return
         if event == IRQ_WRITE_REQ:
             length = int(self._frame_len)
-            self._frame_len = length + int(target.readinto(self._rx_at[length if length < _MAX_FRAME else _MAX_FRAME]))
+            at = self._rx_at[length if length < _MAX_FRAME else _MAX_FRAME]
+            self._frame_len = length + int(target.readinto(at))
             return
         core = self._core
         if event == IRQ_END_WRITE:
@@ -131,23 +134,24 @@ class I2CTargetAdapter:
             # it, so the last bytes of a command can still be in the FIFO (chip/README.md).
             length = int(self._frame_len)
             length += int(target.readinto(self._rx_at[length if length < _MAX_FRAME else _MAX_FRAME]))
-            frame = ptr8(self._frame)
-            if length:
-                table = ptr8(self._ftab)
-                if length < table[_WLEN + frame[0]]:
-                    if self._bus_active():
-                        self._frame_len = length  # a command cut short by the driver: its rest follows
-                        return
-            self._frame_len = 0
+            addr = ptr8(self._frame)[0]
             selected = 0
-            if length == 1:  # a register selected for reading: on_frame's first case, inlined
-                selection = self._wire_tails[frame[0]]
+            if length == 1 and addr < _REGISTERS:  # selected for reading: on_frame's first case
+                selection = self._wire_tails[addr]
                 if selection:
                     core._reply_tails = selection
                     core._reply_err = 0
                     selected = 1
             if not selected:
+                if length and addr < _REGISTERS:
+                    if length < ptr8(self._ftab)[_WLEN + addr]:
+                        if self._bus_active():
+                            self._frame_len = length  # cut short by the driver: the rest follows
+                            self._reply_pos = _FRAME_OPEN
+                            return
+                self._reply_pos = -1
                 self._on_frame(self._frame, length)
+            self._frame_len = 0
         else:  # END_READ
             self._reply_pos = -1
         core.host_us = self._ticks_us()  # host_seen(), inlined: the deadman counts from here

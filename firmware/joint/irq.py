@@ -41,6 +41,7 @@ COUNTER_MASK = const(0x1FFFFFFF)
 # The protocol's numbers the viper code compares with, as constants of this module (viper cannot
 # compare with another module's names); checked against protocol.py below.
 _R_NONE = const(0)
+_R_UNKNOWN_REGISTER = const(1)
 _R_LENGTH = const(3)
 _R_VALUE = const(4)
 _R_BUSY = const(5)
@@ -54,32 +55,35 @@ _FLAG_NOTENABLED = const(0x08)
 _HOMEOFFSET = const(0x2E)
 _STOP = const(0x29)
 _SETRPM = const(0x11)
-if ((_R_NONE, _R_LENGTH, _R_VALUE, _R_BUSY, _R_QUEUE_FULL, _R_DISABLED, _R_NOT_ENABLED, _R_STALLED,
-     _R_HOMING_SENSITIVITY, _FLAG_STALL, _FLAG_NOTENABLED, _HOMEOFFSET, _STOP, _SETRPM, SLOT_FLAGS, SLOT)
-        != (REJECT_NONE, REJECT_LENGTH, REJECT_VALUE, REJECT_BUSY, REJECT_QUEUE_FULL, REJECT_DISABLED,
-            REJECT_NOT_ENABLED, REJECT_STALLED, REJECT_HOMING_SENSITIVITY, FLAG_STALL, FLAG_NOTENABLED,
-            HOMEOFFSET, STOP, SETRPM, MAX_FRAME, MAX_FRAME + 3)):
+if ((_R_NONE, _R_UNKNOWN_REGISTER, _R_LENGTH, _R_VALUE, _R_BUSY, _R_QUEUE_FULL, _R_DISABLED,
+     _R_NOT_ENABLED, _R_STALLED, _R_HOMING_SENSITIVITY, _FLAG_STALL, _FLAG_NOTENABLED, _HOMEOFFSET,
+     _STOP, _SETRPM, SLOT_FLAGS, SLOT)
+        != (REJECT_NONE, REJECT_UNKNOWN_REGISTER, REJECT_LENGTH, REJECT_VALUE, REJECT_BUSY,
+            REJECT_QUEUE_FULL, REJECT_DISABLED, REJECT_NOT_ENABLED, REJECT_STALLED,
+            REJECT_HOMING_SENSITIVITY, FLAG_STALL, FLAG_NOTENABLED, HOMEOFFSET, STOP, SETRPM,
+            MAX_FRAME, MAX_FRAME + 3)):
     raise ImportError("irq.py constants differ from protocol.py")
 
 # The frame table (`_ftab`, one bytearray so viper code reaches it through one pointer): by register
-# address, the reject reason whatever the payload (or REJECT_NONE), the frame length a payload
-# needs, how the payload is checked and the spec's flag effects; then, for registers below
-# _CHECKED, the payload limits.
+# address (every register is below _REGISTERS; any other address is unknown), the reject reason
+# whatever the payload (or REJECT_NONE), the frame length a payload needs, how the payload is
+# checked, the spec's flag effects, what the joint's state may refuse, then the payload limits.
+_REGISTERS = const(64)
+REGISTER_SPACE = const(64)  # for i2c_target.py
 _PRE = const(0)
-_WLEN = const(256)
-FTAB_WLEN = const(256)  # for i2c_target.py
-_CHECK = const(512)
-_SETS = const(768)
-_CLEARS = const(1024)
-_ZERO_SETS = const(1280)
-_BLOCKS = const(1536)
-_LO = const(1792)  # CHECK_BYTES: payload byte i within [_LO, _HI] at addr*4 + i
-_HI = const(2048)
-_LIMITS = const(2304)  # CHECK_F32: the |value| limits as 16-bit halves (low high16, low low16,
+_WLEN = const(64)
+FTAB_WLEN = const(64)  # for i2c_target.py
+_CHECK = const(128)
+_SETS = const(192)
+_CLEARS = const(256)
+_ZERO_SETS = const(320)
+_BLOCKS = const(384)
+_REFUSE = const(448)  # _MOTION or _HOMING
+_LO = const(512)  # CHECK_BYTES: payload byte i within [_LO, _HI] at addr*4 + i
+_HI = const(768)
+_LIMITS = const(1024)  # CHECK_F32: the |value| limits as 16-bit halves (low high16, low low16,
 #                        high high16, high low16), little-endian, at addr*8; CHECK_U16: low, high
-_REFUSE = const(2816)  # what the joint's state may refuse: _MOTION or _HOMING
-_CHECKED = const(64)
-_FTAB_SIZE = const(3072)
+_FTAB_SIZE = const(1536)
 _MOTION = const(1)  # refused while stalled or not enabled (SETRPM: unless 0 rpm)
 _HOMING = const(2)  # refused at or below the homing sensitivity noise floor
 
@@ -92,15 +96,14 @@ CHECK_ANY = const(3)  # one I32 field: any value
 def _payload_check(reg):
     """The check kind for a register's write fields; ValueError if the tables cannot check them."""
     kinds = [f.kind for f in reg.write]
-    if reg.addr < _CHECKED:
-        if all(k == U8 for k in kinds) and len(kinds) <= 4:
-            return CHECK_BYTES
-        if kinds == [F32]:
-            return CHECK_F32
-        if kinds == [U16]:
-            return CHECK_U16
-        if kinds == [I32]:
-            return CHECK_ANY
+    if all(k == U8 for k in kinds) and len(kinds) <= 4:
+        return CHECK_BYTES
+    if kinds == [F32]:
+        return CHECK_F32
+    if kinds == [U16]:
+        return CHECK_U16
+    if kinds == [I32]:
+        return CHECK_ANY
     raise ValueError("the IRQ frame tables cannot check register %s" % reg.name)
 
 
@@ -114,7 +117,10 @@ def frame_table():
     t = bytearray(_FTAB_SIZE)
     for addr in range(256):
         reg = BY_ADDR[addr]
-        if reg is None:
+        if addr >= _REGISTERS:
+            if reg is not None:
+                raise ValueError("register %s is outside the IRQ frame table" % reg.name)
+        elif reg is None:
             t[_PRE + addr] = REJECT_UNKNOWN_REGISTER
         elif not reg.supported:
             t[_PRE + addr] = REJECT_UNSUPPORTED
@@ -156,7 +162,7 @@ class IrqPath:
 
     def _init_irq_tables(self):
         """Wire buffers for the reply caches and the per-register frame tables, from the spec."""
-        self._wire_tails = [None] * 256
+        self._wire_tails = [None] * _REGISTERS
         for addr in range(256):
             cache = self._cache[addr]
             if cache is not None:
@@ -185,6 +191,9 @@ class IrqPath:
         f = ptr8(frame)
         t = ptr8(self._ftab)
         addr = f[0]
+        if addr >= _REGISTERS:
+            self._reject(addr, _R_UNKNOWN_REGISTER)
+            return
         if n == 1:
             tails = self._wire_tails[addr]
             if tails:
