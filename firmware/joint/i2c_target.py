@@ -106,12 +106,19 @@ class I2CTargetAdapter:
                     self._on_frame(self._frame, length)
                 core = self._core
                 tails = core._reply_tails
-                n = int(len(tails)) - 1
-                wire = ptr8(tails[0])
-                wire[n] = int(core.flags) | int(core._reply_err)
+                wire = tails[0]
+                n = int(len(wire)) - 1
+                ptr8(wire)[n] = int(core.flags) | int(core._reply_err)
+                if self._whole:
+                    sent = int(target.write(wire))
+                else:
+                    ptr8(self._one)[0] = ptr8(wire)[0]
+                    sent = int(target.write(self._one))
+                # SCL runs again once the port has the first byte: the bookkeeping comes after.
+                self._reply_pos = sent
                 self._tails = tails
                 self._reply_len = n + 1
-                pos = 0
+                return
             if pos < int(self._reply_len):
                 if self._whole:
                     self._reply_pos = pos + int(target.write(self._tails[pos]))
@@ -135,23 +142,22 @@ class I2CTargetAdapter:
             length = int(self._frame_len)
             length += int(target.readinto(self._rx_at[length if length < _MAX_FRAME else _MAX_FRAME]))
             addr = ptr8(self._frame)[0]
-            selected = 0
             if length == 1 and addr < _REGISTERS:  # selected for reading: on_frame's first case
                 selection = self._wire_tails[addr]
                 if selection:
                     core._reply_tails = selection
                     core._reply_err = 0
-                    selected = 1
-            if not selected:
-                if length and addr < _REGISTERS:
-                    if length < ptr8(self._ftab)[_WLEN + addr]:
-                        if self._bus_active():
-                            self._frame_len = length  # cut short by the driver: the rest follows
-                            self._reply_pos = _FRAME_OPEN
-                            return
-                self._reply_pos = -1
-                self._on_frame(self._frame, length)
+                    self._frame_len = 0
+                    return  # the read that follows ends the transaction (END_READ feeds the deadman)
+            if length and addr < _REGISTERS:
+                if length < ptr8(self._ftab)[_WLEN + addr]:
+                    if self._bus_active():
+                        self._frame_len = length  # cut short by the driver: the rest follows
+                        self._reply_pos = _FRAME_OPEN
+                        return
+            self._reply_pos = -1
             self._frame_len = 0
+            self._on_frame(self._frame, length)
         else:  # END_READ
             self._reply_pos = -1
         core.host_us = self._ticks_us()  # host_seen(), inlined: the deadman counts from here
