@@ -74,10 +74,11 @@ def join_bus(machine, core, cfg, log):
             return machine.I2CTarget(i2c.bus, cfg.address, **pins)
         return machine.I2CTarget(i2c.bus, cfg.address, mem=mem, mem_addrsize=MEM_ADDRSIZE, **pins)
 
-    def legacy_adapter(target):
-        return I2CTargetAdapter(core, target, i2c.whole_reply_writes)
-
     probe = bus_activity_probe(machine, i2c.bus)
+
+    def legacy_adapter(target):
+        return I2CTargetAdapter(core, target, i2c.whole_reply_writes, probe)
+
     try:
         return ProtocolSwitch(core, cfg.address, make_target, legacy_adapter,
                               (machine.disable_irq, machine.enable_irq), lambda target: probe)
