@@ -21,9 +21,10 @@ use amax for acceleration and deceleration alike; HOLD keeps v. step() integrate
 exactly, so the result does not depend on how dt is sliced.
 """
 
-from .emitters import micropython
+from .emitters import micropython, ptr32
 
 import math
+from array import array
 
 try:
     from micropython import const
@@ -145,6 +146,26 @@ class Ramp:
         return x - x0
 
 
+# TickRamp's state, one int32 each in `TickRamp.s` (the viper tick reads them as raw words).
+_X = const(0)
+_XF = const(1)
+_V = const(2)
+_MODE = const(3)
+_XTARGET = const(4)
+_VMAX = const(5)
+_AMAX = const(6)
+_DMAX = const(7)
+
+
+def _field(i):
+    def get(self):
+        return self.s[i]
+
+    def put(self, value):
+        self.s[i] = value
+    return property(get, put)
+
+
 class TickRamp:
     """The same ramp generator in integers, advanced one control tick at a time (the chip's).
 
@@ -152,106 +173,141 @@ class TickRamp:
 
         r.vmax, r.amax, r.dmax   Q16 usteps per tick, per tick^2 (>= 0)
         r.mode, r.xtarget        as Ramp (xtarget int usteps)
-        r.tick()                 advance one tick
+        r.tick(), r.run(n)       advance one tick, n ticks
         r.x, r.xf, r.v           position: x usteps + xf / 65536; signed velocity, Q16 usteps/tick
         r.xactual(), r.set_position(n), r.position_reached()
 
     Positions advance by the trapezoid rule, so a constant acceleration is integrated exactly.
     Positioning brakes when the distance left is within the braking distance at DMAX, then
     decelerates at the rate that lands on the target (DMAX, give or take the tick's rounding).
-    All arithmetic stays within small ints (Q16 speed < 2**27, the squares taken in Q8).
+    All arithmetic stays within small ints (Q16 speed < 2**27, the squares taken in Q8). The
+    state is an int32 array `s` (indices _X.._DMAX) that one viper call advances: an attribute
+    costs ~6 us on the chip, a word of the array a few instructions. Positions are int32 and
+    wrap like the TMC5130's XACTUAL.
     """
 
+    x = _field(_X)
+    xf = _field(_XF)
+    v = _field(_V)
+    mode = _field(_MODE)
+    xtarget = _field(_XTARGET)
+    vmax = _field(_VMAX)
+    amax = _field(_AMAX)
+    dmax = _field(_DMAX)
+
     def __init__(self):
-        self.x = 0
-        self.xf = 0
-        self.v = 0
-        self.mode = POSITIONING
-        self.xtarget = 0
-        self.vmax = 0
-        self.amax = 0
-        self.dmax = 0
+        self.s = array("i", bytes(4 * 8))  # mode POSITIONING (0), everything else 0
 
     def xactual(self):
-        return self.x + 1 if self.xf >= 0x8000 else self.x
+        s = self.s
+        return s[_X] + 1 if s[_XF] >= 0x8000 else s[_X]
 
     def set_position(self, x):
-        self.x = x
-        self.xf = 0
+        s = self.s
+        s[_X] = x
+        s[_XF] = 0
 
     def position_reached(self):
-        return self.mode == POSITIONING and self.v == 0 and self.x == self.xtarget and self.xf == 0
+        s = self.s
+        return (s[_MODE] == POSITIONING and s[_V] == 0 and s[_X] == s[_XTARGET]
+                and s[_XF] == 0)
 
-    @micropython.native
     def tick(self):
-        v = self.v
-        mode = self.mode
-        if mode == POSITIONING:
-            d = self.xtarget - self.x
-            if d == 0 and v == 0 and self.xf == 0:
-                return
-            s = 1 if d > 0 or (d == 0 and v < 0) else -1
-            u = v * s
-            dist = d * s  # whole usteps toward the target
-            dm = self.dmax if self.dmax > 0 else 1
+        _run(self.s, 1)
+
+    def run(self, n):
+        _run(self.s, n)
+
+
+@micropython.viper
+def _run(s: ptr32, n: int):
+    """`n` ticks of the ramp whose state is `s`. Words are read through ((w + m) & k) - m, which
+    sign-extends a 32-bit word on a 64-bit port (viper loads it zero-extended) and is the identity
+    on the 32-bit chip and under CPython."""
+    m = 1
+    m <<= 31
+    k = m + m - 1
+    x = ((s[0] + m) & k) - m
+    xf = ((s[1] + m) & k) - m
+    v = ((s[2] + m) & k) - m
+    mode = ((s[3] + m) & k) - m
+    xtarget = ((s[4] + m) & k) - m
+    vmax = ((s[5] + m) & k) - m
+    amax = ((s[6] + m) & k) - m
+    dmax = ((s[7] + m) & k) - m
+    dm = dmax if dmax > 0 else 1
+    i = 0
+    while i < n:
+        i += 1
+        if mode == 0:  # POSITIONING
+            d = xtarget - x
+            if d == 0 and v == 0 and xf == 0:
+                break
+            sign = 1 if d > 0 or (d == 0 and v < 0) else -1
+            u = v * sign
+            dist = d * sign  # whole usteps toward the target
+            land = 0
             if u < 0:
                 un = u + dm  # moving away: brake, then come back
             else:
                 u8 = u >> 8
                 if u8 < 0x8000:
-                    brake = (u8 * u8) // (2 * dm)  # usteps to stop at dm
-                    near = brake + (u >> 16) >= dist
+                    near = (u8 * u8) // (2 * dm) + (u >> 16) >= dist  # braking distance at dm
                 else:
                     near = ((u8 >> 4) * (u8 >> 4)) // (2 * dm) + (u >> 24) >= dist >> 8
                 if near:
                     if dist <= 0 or u <= 0:
-                        self._land()
-                        return
-                    if u8 < 0x8000:
-                        a = (u8 * u8) // (2 * dist)
+                        land = 1
                     else:
-                        a = ((u8 >> 4) * (u8 >> 4)) // ((dist >> 7) or 1)
-                    if a < 1:
-                        a = 1
-                    if u <= a or dist <= 1:
-                        self._land()
-                        return
-                    un = u - a
-                elif u > self.vmax:
+                        if u8 < 0x8000:
+                            a = (u8 * u8) // (2 * dist)
+                        else:
+                            den = dist >> 7
+                            if den == 0:
+                                den = 1
+                            a = ((u8 >> 4) * (u8 >> 4)) // den
+                        if a < 1:
+                            a = 1
+                        if u <= a or dist <= 1:
+                            land = 1
+                        un = u - a
+                elif u > vmax:
                     un = u - dm
-                    if un < self.vmax:
-                        un = self.vmax
+                    if un < vmax:
+                        un = vmax
                 else:
-                    un = u + self.amax
-                    if un > self.vmax:
-                        un = self.vmax
+                    un = u + amax
+                    if un > vmax:
+                        un = vmax
                     if un == 0:
-                        return  # vmax 0: parked short of the target
-            xf = self.xf + s * ((u + un) >> 1)
-            self.x += xf >> 16
-            self.xf = xf & 0xFFFF
-            self.v = s * un
-        elif mode == HOLD:
-            xf = self.xf + v
-            self.x += xf >> 16
-            self.xf = xf & 0xFFFF
+                        break  # vmax 0: parked short of the target
+            if land:
+                x = xtarget
+                xf = 0
+                v = 0
+                break
+            xf += sign * ((u + un) >> 1)
+            x += xf >> 16
+            xf &= 0xFFFF
+            v = sign * un
+        elif mode == 3:  # HOLD
+            xf += v
+            x += xf >> 16
+            xf &= 0xFFFF
         else:
-            vt = self.vmax if mode == VELOCITY_POS else -self.vmax
-            am = self.amax
+            vt = vmax if mode == 1 else -vmax  # VELOCITY_POS / VELOCITY_NEG
             if v < vt:
-                vn = v + am
+                vn = v + amax
                 if vn > vt:
                     vn = vt
             else:
-                vn = v - am
+                vn = v - amax
                 if vn < vt:
                     vn = vt
-            xf = self.xf + ((v + vn) >> 1)  # trapezoid rule, Q16 usteps
-            self.x += xf >> 16
-            self.xf = xf & 0xFFFF
-            self.v = vn
-
-    def _land(self):
-        self.x = self.xtarget
-        self.xf = 0
-        self.v = 0
+            xf += (v + vn) >> 1  # trapezoid rule, Q16 usteps
+            x += xf >> 16
+            xf &= 0xFFFF
+            v = vn
+    s[0] = x
+    s[1] = xf
+    s[2] = v

@@ -29,11 +29,12 @@ from ..emitters import micropython
 from ..clock import MonotonicClock
 from ..fixed import LIMIT, muldiv
 from ..hal import MotorHAL
-from ..ramp import TickRamp, POSITIONING, VELOCITY_NEG, VELOCITY_POS
-from ..velocity import FixedVelocityEstimator
+from ..ramp import TickRamp, POSITIONING, VELOCITY_NEG, VELOCITY_POS, _run as _ramp_run
+from ..velocity import FixedVelocityEstimator, _update as _velocity_update
 from . import tmc2209 as tmc
 from .as5600 import AS5600, COUNTS_PER_REV, decode_status
 from .stepgen import SM_FREQ, MIN_PERIOD, StepGenerator, burst_program
+from .stepgen import _issue as _steps_issue, _poll as _steps_poll
 
 DEFAULT_PINS = {
     "uart": 1, "uart_tx": 8, "uart_rx": 9,
@@ -93,6 +94,11 @@ class PicoStepper(MotorHAL):
         self._tick_us = 1000000 // rate
         self._ramp = TickRamp()
         self._vel = FixedVelocityEstimator(rate)
+        # The 1 kHz path works on the state arrays themselves (ramp, estimator, pulse counters).
+        self._rs = self._ramp.s
+        self._vs = self._vel.s
+        self._ss = steps.s
+        self._sm = steps._sm
         num, den = 3 * rate, 2560
         while den % 2 == 0 and num % 2 == 0:
             num //= 2
@@ -211,7 +217,9 @@ class PicoStepper(MotorHAL):
 
     @micropython.native
     def update(self):
-        """One control period: allocation-free (integers only), see the module docstring."""
+        """One control period: allocation-free (integers only), see the module docstring. The
+        ramp, the velocity estimator and the pulse bookkeeping are viper functions over their
+        int32 state arrays: a few calls instead of a hundred attribute loads."""
         if not self._ready:
             return
         now = self._ticks()
@@ -224,28 +232,27 @@ class PicoStepper(MotorHAL):
             self._last_us = now
         else:
             self._last_us += ticks * tick_us
-        steps = self._steps
-        steps.poll()
+        ss = self._ss
+        sm = self._sm
+        _steps_poll(ss, sm)
+        rs = self._rs
         enc = self._enc
         if enc.sample():
-            self._vel.update(enc.count)
+            count = enc.count
+            _velocity_update(self._vs, count)
             if self._closed_loop:
-                count = enc.count
                 measured = (count * 25) >> 1 if count >= 0 else -((-count * 25) >> 1)
-                error = steps.position - measured
+                error = ss[0] - measured  # driver position
                 self._error = error
-                ramp = self._ramp
                 if error >= self._threshold or -error >= self._threshold:
                     # _relabel(-error), inlined for the 1 kHz path
-                    steps.position -= error
-                    steps.commanded -= error
-                    ramp.x -= error
-        ramp = self._ramp
-        for _ in range(ticks):
-            ramp.tick()
-        if self._stopping and ramp.v == 0:
+                    ss[0] -= error
+                    ss[1] -= error
+                    rs[0] -= error
+        _ramp_run(rs, ticks)
+        if self._stopping and rs[2] == 0:  # the ramp's speed
             self._finish_stop()
-        steps.issue(ramp.x, ticks * tick_us)
+        _steps_issue(ss, sm, rs[0], ticks * tick_us)
 
     def _relabel(self, delta):
         """Shift the driver frame by `delta` usteps without moving the motor (an XACTUAL write):
@@ -400,12 +407,12 @@ class PicoStepper(MotorHAL):
 
     def encoder_rpm(self):
         """rpm in Q16: counts/s (Q8) * 60 / 4096 * 256 (|counts/s| < 280 000 keeps it small)."""
-        return (self._vel.value * 15) >> 2
+        return (self._vs[6] * 15) >> 2  # the estimator's value
 
     def driver_rpm(self):
         """Speed of the ramp generator, rpm in Q16 (the ramp's Q16 usteps/tick * rate * 60 / 51200),
         rounded toward minus infinity; muldiv inlined (it runs at 1 kHz)."""
-        v = self._ramp.v
+        v = self._rs[2]  # the ramp's speed
         den = self._rpm_den
         q = v // den
         return q * self._rpm_num + (v - q * den) * self._rpm_num // den
