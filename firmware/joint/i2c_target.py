@@ -144,7 +144,7 @@ class I2CTargetAdapter:
                     core._reply_err = 0
                     self._frame_len = 0
                     return  # the read that follows ends the transaction (END_READ feeds the deadman)
-            if length and addr < _REGISTERS:
+            if length and length < _MAX_FRAME and addr < _REGISTERS:  # (no frame is longer)
                 if length < ptr8(self._ftab)[_WLEN + addr]:
                     if self._bus_active():
                         self._frame_len = length  # cut short by the driver: the rest follows

@@ -234,6 +234,7 @@ class IrqPath:
                 if value < (t[o] | (t[o + 1] << 8)) or value > (t[o + 2] | (t[o + 3] << 8)):
                     reason = _R_VALUE
         # Then the joint's state.
+        flags = int(self.flags)
         if reason == _R_NONE:
             if self.disabled:
                 reason = _R_DISABLED
@@ -252,7 +253,6 @@ class IrqPath:
                         reason = _R_HOMING_SENSITIVITY
                 elif refuse == _MOTION:
                     if addr != _SETRPM or f[1] | f[2] | f[3] | (f[4] & 0x7F):
-                        flags = int(self.flags)
                         if flags & _FLAG_STALL:
                             reason = _R_STALLED
                         elif flags & _FLAG_NOTENABLED:
@@ -261,7 +261,7 @@ class IrqPath:
             self._reject(addr, reason)
             return
         clears = t[_CLEARS + addr]
-        flags = (int(self.flags) | t[_SETS + addr]) & (0xFF ^ clears)
+        flags = (flags | t[_SETS + addr]) & (0xFF ^ clears)
         if f[1] == 0:
             flags |= t[_ZERO_SETS + addr]
         self.flags = flags
