@@ -150,8 +150,7 @@ class I2CTargetAdapter:
                         self._frame_len = length  # cut short by the driver: the rest follows
                         self._reply_pos = _FRAME_OPEN
                         return
-            self._reply_pos = -1
-            self._frame_len = 0
+            self._frame_len = 0  # (a _FRAME_OPEN left in _reply_pos only closes an empty frame)
             self._on_frame(self._frame, length)
         else:  # END_READ
             self._reply_pos = -1

@@ -235,13 +235,14 @@ class IrqPath:
                     reason = _R_VALUE
         # Then the joint's state.
         flags = int(self.flags)
+        q_in = int(self._q_in)
         if reason == _R_NONE:
             if self.disabled:
                 reason = _R_DISABLED
             elif t[_BLOCKS + addr] and bool(self._blocking_live()):
                 reason = _R_BUSY
             elif (addr != _HOMEOFFSET and addr != _STOP
-                  and ((int(self._q_in) - int(self._q_out)) & COUNTER_MASK) >= QUEUE_SLOTS):
+                  and ((q_in - int(self._q_out)) & COUNTER_MASK) >= QUEUE_SLOTS):
                 reason = _R_QUEUE_FULL
             else:
                 # What the joint's state refuses: motion while stalled or not enabled (0 rpm
@@ -279,7 +280,6 @@ class IrqPath:
             cache[2] = f[3]
             cache[3] = f[4]
         else:
-            q_in = int(self._q_in)
             base = (q_in & (QUEUE_SLOTS - 1)) * SLOT
             queue = ptr8(self._queue)
             i = 0
