@@ -78,14 +78,14 @@ class I2CTargetAdapter:
         self._frame_len = 0
         self._one = bytearray(1)
         self._pad = bytearray(1)
-        self._tails = core._reply_tails
+        self._wire = core._reply_wire
         self._reply_len = 0
         self._reply_pos = -1  # -1: no read in progress
         # Bound methods made once: looking them up in the IRQ would walk the core's mixins.
         self._on_frame = core.on_frame
         self._ftab = core._ftab
         self._bus_active = bus_active or _never
-        self._wire_tails = core._wire_tails
+        self._wires = core._wires
         self._ticks_us = core._ticks_us
         self._handler = self._irq
         self._events = target.irq(self._handler, trigger=TRIGGER, hard=True)  # the irq object
@@ -105,10 +105,9 @@ class I2CTargetAdapter:
                     self._frame_len = 0
                     self._on_frame(self._frame, length)
                 core = self._core
-                tails = core._reply_tails
-                wire = tails[0]
-                n = int(len(wire)) - 1
-                ptr8(wire)[n] = int(core.flags) | int(core._reply_err)
+                wire = core._reply_wire
+                n = int(len(wire))
+                ptr8(wire)[n - 1] = int(core.flags) | int(core._reply_err)
                 if self._whole:
                     sent = int(target.write(wire))
                 else:
@@ -116,16 +115,12 @@ class I2CTargetAdapter:
                     sent = int(target.write(self._one))
                 # SCL runs again once the port has the first byte: the bookkeeping comes after.
                 self._reply_pos = sent
-                self._tails = tails
-                self._reply_len = n + 1
+                self._wire = wire
+                self._reply_len = n
                 return
-            if pos < int(self._reply_len):
-                if self._whole:
-                    self._reply_pos = pos + int(target.write(self._tails[pos]))
-                else:
-                    one = ptr8(self._one)
-                    one[0] = int(self._tails[0][pos])
-                    self._reply_pos = pos + int(target.write(self._one))
+            if pos < int(self._reply_len):  # a port that took less: the rest a byte at a time
+                ptr8(self._one)[0] = ptr8(self._wire)[pos]
+                self._reply_pos = pos + int(target.write(self._one))
             else:
                 self._reply_pos = pos
                 target.write(self._pad)
@@ -143,20 +138,19 @@ class I2CTargetAdapter:
             length += int(target.readinto(self._rx_at[length if length < _MAX_FRAME else _MAX_FRAME]))
             addr = ptr8(self._frame)[0]
             if length == 1 and addr < _REGISTERS:  # selected for reading: on_frame's first case
-                selection = self._wire_tails[addr]
+                selection = self._wires[addr]
                 if selection:
-                    core._reply_tails = selection
+                    core._reply_wire = selection
                     core._reply_err = 0
                     self._frame_len = 0
                     return  # the read that follows ends the transaction (END_READ feeds the deadman)
-            if length and addr < _REGISTERS:
+            if length and length < _MAX_FRAME and addr < _REGISTERS:  # (no frame is longer)
                 if length < ptr8(self._ftab)[_WLEN + addr]:
                     if self._bus_active():
                         self._frame_len = length  # cut short by the driver: the rest follows
                         self._reply_pos = _FRAME_OPEN
                         return
-            self._reply_pos = -1
-            self._frame_len = 0
+            self._frame_len = 0  # (a _FRAME_OPEN left in _reply_pos only closes an empty frame)
             self._on_frame(self._frame, length)
         else:  # END_READ
             self._reply_pos = -1

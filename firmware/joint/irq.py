@@ -155,14 +155,13 @@ def frame_table():
 class IrqPath:
     """JointController's IRQ-side methods (mixed into it): no allocation anywhere here.
 
-    A read is served from `_reply_tails`, the suffixes of the selected register's wire buffer
-    ([0] is all of it; the flags go in its last byte, the only one of a flags-only reply), selected
-    once when the register is written.
+    A read is served from `_reply_wire`, the selected register's wire buffer (the flags go in its
+    last byte, the only one of a flags-only reply), selected once when the register is written.
     """
 
     def _init_irq_tables(self):
         """Wire buffers for the reply caches and the per-register frame tables, from the spec."""
-        self._wire_tails = [None] * _REGISTERS
+        self._wires = [None] * _REGISTERS
         for addr in range(256):
             cache = self._cache[addr]
             if cache is not None:
@@ -171,11 +170,10 @@ class IrqPath:
                 wire[:n] = cache
                 view = memoryview(wire)
                 self._cache[addr] = view[:n]  # the main loop packs here, as before
-                self._wire_tails[addr] = [view[i:] for i in range(n + 1)]
-        flags_only = memoryview(bytearray(1))
-        self._flags_tails = [flags_only]
+                self._wires[addr] = view
+        self._flags_wire = memoryview(bytearray(1))
         self._ftab = frame_table()
-        self._reply_tails = self._wire_tails[PING]
+        self._reply_wire = self._wires[PING]
         self._reply_err = 0
 
     def host_seen(self):
@@ -195,9 +193,9 @@ class IrqPath:
             self._reject(addr, _R_UNKNOWN_REGISTER)
             return
         if n == 1:
-            tails = self._wire_tails[addr]
-            if tails:
-                self._reply_tails = tails
+            wire = self._wires[addr]
+            if wire:
+                self._reply_wire = wire
                 self._reply_err = 0
                 return
         # The payload against the spec, as Register.check_write judges it.
@@ -236,13 +234,15 @@ class IrqPath:
                 if value < (t[o] | (t[o + 1] << 8)) or value > (t[o + 2] | (t[o + 3] << 8)):
                     reason = _R_VALUE
         # Then the joint's state.
+        flags = int(self.flags)
+        q_in = int(self._q_in)
         if reason == _R_NONE:
             if self.disabled:
                 reason = _R_DISABLED
             elif t[_BLOCKS + addr] and bool(self._blocking_live()):
                 reason = _R_BUSY
             elif (addr != _HOMEOFFSET and addr != _STOP
-                  and ((int(self._q_in) - int(self._q_out)) & COUNTER_MASK) >= QUEUE_SLOTS):
+                  and ((q_in - int(self._q_out)) & COUNTER_MASK) >= QUEUE_SLOTS):
                 reason = _R_QUEUE_FULL
             else:
                 # What the joint's state refuses: motion while stalled or not enabled (0 rpm
@@ -254,7 +254,6 @@ class IrqPath:
                         reason = _R_HOMING_SENSITIVITY
                 elif refuse == _MOTION:
                     if addr != _SETRPM or f[1] | f[2] | f[3] | (f[4] & 0x7F):
-                        flags = int(self.flags)
                         if flags & _FLAG_STALL:
                             reason = _R_STALLED
                         elif flags & _FLAG_NOTENABLED:
@@ -263,7 +262,7 @@ class IrqPath:
             self._reject(addr, reason)
             return
         clears = t[_CLEARS + addr]
-        flags = (int(self.flags) | t[_SETS + addr]) & (0xFF ^ clears)
+        flags = (flags | t[_SETS + addr]) & (0xFF ^ clears)
         if f[1] == 0:
             flags |= t[_ZERO_SETS + addr]
         self.flags = flags
@@ -281,7 +280,6 @@ class IrqPath:
             cache[2] = f[3]
             cache[3] = f[4]
         else:
-            q_in = int(self._q_in)
             base = (q_in & (QUEUE_SLOTS - 1)) * SLOT
             queue = ptr8(self._queue)
             i = 0
@@ -296,7 +294,7 @@ class IrqPath:
                 self._blocking_stops = stops
                 self._blocking_in = (int(self._blocking_in) + 1) & COUNTER_MASK
             self._q_in = (q_in + 1) & COUNTER_MASK
-        self._reply_tails = self._flags_tails
+        self._reply_wire = self._flags_wire
         self._reply_err = 0
 
     def _blocking_live(self):
@@ -306,7 +304,7 @@ class IrqPath:
         return self._task is not None and self._task_stops == self.stops
 
     def _reject(self, addr, reason):
-        self._reply_tails = self._flags_tails
+        self._reply_wire = self._flags_wire
         self._reply_err = FLAG_ERROR
         self.rejects = (self.rejects + 1) & 0xFFFF
         cache = self._cache[LASTERROR]
@@ -316,18 +314,11 @@ class IrqPath:
         cache[3] = self.rejects >> 8
 
     @micropython.native
-    def reply_wire(self):
-        """The selected reply, flags included as of now: (its wire buffer's suffixes, its length)."""
-        tails = self._reply_tails
-        n = len(tails) - 1
-        tails[0][n] = self.flags | self._reply_err
-        return n + 1
-
-    @micropython.native
     def reply_into(self, out):
         """Write the reply (payload + flags) right-aligned at the end of `out`; return its length."""
-        n = self.reply_wire()
-        wire = self._reply_tails[0]
+        wire = self._reply_wire
+        n = len(wire)
+        wire[n - 1] = self.flags | self._reply_err
         start = len(out) - n
         for i in range(n):
             out[start + i] = wire[i]
