@@ -22,13 +22,11 @@ import chip_bench  # noqa: E402
 # (module, class, method, arity after self)
 TARGETS = [
     ("joint.core", "JointController", "service", 0),
-    ("joint.core", "JointController", "_service_motor", 1),
     ("joint.core", "JointController", "_apply_next", 0),
     ("joint.core", "JointController", "_step_task", 1),
     ("joint.core", "JointController", "_check_stall", 0),
     ("joint.core", "JointController", "_check_tracking", 0),
     ("joint.core", "JointController", "_check_deadman", 0),
-    ("joint.core", "JointController", "_refresh_caches", 0),
     ("joint.core", "JointController", "_host_angle", 0),
     ("joint.core", "JointController", "_store_f32", 3),
     ("joint.core", "JointController", "_encoder_usteps", 0),
@@ -40,11 +38,7 @@ TARGETS = [
     ("joint.pico.motor", "PicoStepper", "angle_moved", 0),
     ("joint.pico.motor", "PicoStepper", "field_position", 0),
     ("joint.pico.motor", "PicoStepper", "position_reached", 0),
-    ("joint.pico.stepgen", "StepGenerator", "poll", 0),
-    ("joint.pico.stepgen", "StepGenerator", "issue", 2),
     ("joint.pico.as5600", "AS5600", "sample", 0),
-    ("joint.velocity", "FixedVelocityEstimator", "update", 1),
-    ("joint.ramp", "TickRamp", "tick", 0),
     ("joint.tracking", "TrackingDetector", "update", 2),
     ("joint.v2", "ProtocolSwitch", "service", 0),
     ("joint.debug", "DebugConsole", "poll", 0),
@@ -188,7 +182,7 @@ for _ in range(500):
 t = time.ticks_us
 d = time.ticks_diff
 hal = core.hal
-names = ("service", "hal.update", "apply/task/pos", "stall+track", "deadman", "refresh_caches",
+names = ("service", "hal.update", "apply/task/pos", "stall+track", "deadman", "angle_cache",
          "switch.service", "console.poll", "steps.poll", "enc.sample", "vel.update", "ramp.tick",
          "steps.issue", "host_angle", "encoder_rpm", "store_f32")
 acc = [0] * len(names)
@@ -208,7 +202,7 @@ for i in range(N):
     t2 = t()
     core._check_stall(); core._check_tracking(); t3 = t()
     core._check_deadman(); t4 = t()
-    core._refresh_caches(); t5 = t()
+    core._store_f32(core._cache[P.ANGLEMOVED], hal.angle_moved() + core.zero_offset, 12); t5 = t()
     switch.service(); t6 = t()
     console.poll(); t7 = t()
     acc[1] += d(t1, t0); acc[2] += d(t2, t1); acc[3] += d(t3, t2); acc[4] += d(t4, t3)

@@ -74,6 +74,7 @@ class JointController(IrqPath, MainLoop, Handlers, Tasks, Supervisor):
         # Deadman: 0 = the original's (velocity only, cfg.deadman_ms); WATCHDOG sets every mode.
         self.watchdog_ms = 0
         self._deadman_ms = cfg.deadman_ms
+        self._deadman_us = cfg.deadman_ms * 1000  # the main loop's test before calling the deadman
         # Degrees Q12 from the encoder's zero (set where the rotor rested after homing) to the end
         # stop's deepest point: the host's angle is the encoder's plus this.
         self.zero_offset = 0
