@@ -15,6 +15,7 @@ firmware runs it inside the I2C IRQ and the host runs the very same check before
 """
 
 import struct
+import sys
 
 try:
     from micropython import const
@@ -28,6 +29,9 @@ except ImportError:
     from zlib import crc32
 
 from .protocol_v2 import spec_bytes as _v2_spec_bytes
+
+# Register docs are for people (the host's shell and docs); the board does not keep them (heap).
+_KEEP_DOCS = sys.implementation.name != "micropython"
 
 PROTOCOL_VERSION = const(2)  # the newest protocol this firmware serves (IDENTITY); see protocol_v2
 
@@ -212,7 +216,7 @@ class Register:
             self.zero_sets = zero_sets
         if not supported:
             self.supported = supported
-        if doc:
+        if doc and _KEEP_DOCS:
             self.doc = doc
 
     @property

@@ -7,7 +7,8 @@ joint.velocity.VelocityEstimator) and against struct's float32 encoding, on both
 import struct
 
 from joint.fixed import LIMIT, f32_to_q, i32, muldiv, pack_q, to_q
-from joint.ramp import HOLD, POSITIONING, VELOCITY_NEG, VELOCITY_POS, Ramp, TickRamp
+from joint.ramp import HOLD, POSITIONING, VELOCITY_NEG, VELOCITY_POS, Ramp
+from joint.tickramp import TickRamp
 from joint.velocity import FixedVelocityEstimator, VelocityEstimator
 from harness import Xorshift
 

@@ -1,6 +1,6 @@
 """PicoStepper: the MotorHAL on a Raspberry Pi Pico, a TMC2209 and an AS5600.
 
-The TMC5130 of the uStepper generated its own ramp; here joint.ramp.Ramp plays that part in the
+The TMC5130 of the uStepper generated its own ramp; here joint.tickramp.TickRamp plays that part in the
 main loop and the PIO turns it into STEP/DIR pulses (stepgen.py). update() does what the
 library's 1.54 kHz timer interrupt did (ustepper-model.md section 3): sample the encoder, run the
 velocity estimator and, with the closed loop on, re-synchronise the driver position to the encoder
@@ -29,7 +29,8 @@ from ..emitters import micropython
 from ..clock import MonotonicClock
 from ..fixed import LIMIT, muldiv
 from ..hal import MotorHAL
-from ..ramp import TickRamp, POSITIONING, VELOCITY_NEG, VELOCITY_POS, _run as _ramp_run
+from ..tickramp import TickRamp, POSITIONING, VELOCITY_NEG, VELOCITY_POS, _run as _ramp_run
+from ..tickramp import S_MODE, S_V, S_VMAX, S_X
 from ..velocity import FixedVelocityEstimator, _update as _velocity_update
 from . import tmc2209 as tmc
 from .as5600 import AS5600, COUNTS_PER_REV, decode_status
@@ -248,11 +249,11 @@ class PicoStepper(MotorHAL):
                     # _relabel(-error), inlined for the 1 kHz path
                     ss[0] -= error
                     ss[1] -= error
-                    rs[0] -= error
+                    rs[S_X] -= error
         _ramp_run(rs, ticks)
-        if self._stopping and rs[2] == 0:  # the ramp's speed
+        if self._stopping and rs[S_V] == 0:
             self._finish_stop()
-        _steps_issue(ss, sm, rs[0], ticks * tick_us)
+        _steps_issue(ss, sm, rs[S_X], ticks * tick_us)
 
     def _relabel(self, delta):
         """Shift the driver frame by `delta` usteps without moving the motor (an XACTUAL write):
@@ -305,14 +306,14 @@ class PicoStepper(MotorHAL):
 
     def set_rpm(self, rpm):
         """Velocity mode: VMAX = |rpm| (Q16, fixed.RPM_Q), direction from the sign (0 ramps down)."""
-        ramp = self._ramp
         if self._stopping:  # a new command ends a stop (the library's stop() blocks instead)
             self._stopping = False
-            ramp.amax = self._amax
-            ramp.dmax = self._dmax
+            self._ramp.amax = self._amax
+            self._ramp.dmax = self._dmax
         v = muldiv(rpm if rpm >= 0 else -rpm, 2560, 3 * self._rate)  # 51200 / 60 usteps/s per rpm
-        ramp.vmax = v if v < self._vmax_limit else self._vmax_limit
-        ramp.mode = VELOCITY_POS if rpm > 0 else VELOCITY_NEG
+        rs = self._rs  # the ramp's words: a host streams SETRPM at its cycle rate
+        rs[S_VMAX] = v if v < self._vmax_limit else self._vmax_limit
+        rs[S_MODE] = VELOCITY_POS if rpm > 0 else VELOCITY_NEG
 
     def move_steps(self, usteps):
         """Positioning to the ramp position + usteps with the stored velocity and accelerations."""
@@ -412,7 +413,7 @@ class PicoStepper(MotorHAL):
     def driver_rpm(self):
         """Speed of the ramp generator, rpm in Q16 (the ramp's Q16 usteps/tick * rate * 60 / 51200),
         rounded toward minus infinity; muldiv inlined (it runs at 1 kHz)."""
-        v = self._rs[2]  # the ramp's speed
+        v = self._rs[S_V]
         den = self._rpm_den
         q = v // den
         return q * self._rpm_num + (v - q * den) * self._rpm_num // den
