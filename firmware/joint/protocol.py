@@ -139,10 +139,19 @@ class Field:
             self.lo = lo
         if hi:
             self.hi = hi
-        self.code, self.size = _CODES[kind]
         if kind == F32:
             self._lo_hi16, self._lo_lo16 = _f32_halves(lo)
             self._hi_hi16, self._hi_lo16 = _f32_halves(hi)
+
+    @property
+    def code(self):
+        """struct format character (derived, not stored: heap on the board)."""
+        return _CODES[self.kind][0]
+
+    @property
+    def size(self):
+        """Bytes on the wire."""
+        return _CODES[self.kind][1]
 
     def check(self, buf, off):
         """True if the encoded value at buf[off:] is valid. Allocation-free (runs in the IRQ)."""
@@ -191,8 +200,6 @@ class Register:
     doc = ""
     wsize = 0
     rsize = 0
-    wfmt = "<"
-    rfmt = "<"
 
     def __init__(self, addr, name, write=(), read=(), blocking=False, sets=0, clears=0,
                  zero_sets=0, supported=True, doc=""):
@@ -201,11 +208,9 @@ class Register:
         if write:
             self.write = write
             self.wsize = sum(f.size for f in write)
-            self.wfmt = "<" + "".join(f.code for f in write)
         if read:
             self.read = read
             self.rsize = sum(f.size for f in read)
-            self.rfmt = "<" + "".join(f.code for f in read)
         if blocking:
             self.blocking = blocking
         if sets:
@@ -218,6 +223,15 @@ class Register:
             self.supported = supported
         if doc and _KEEP_DOCS:
             self.doc = doc
+
+    @property
+    def wfmt(self):
+        """struct format of the write payload (built when asked: encode and decode allocate anyway)."""
+        return "<" + "".join(f.code for f in self.write)
+
+    @property
+    def rfmt(self):
+        return "<" + "".join(f.code for f in self.read)
 
     @property
     def readable(self):

@@ -194,12 +194,15 @@ def _poll(s: ptr32, sm):
     m <<= 31
     k = m + m - 1
     upp = ((s[4] + m) & k) - m
+    wrap = 1
+    wrap <<= 30
+    wrap -= 1  # the field counter's mask (not a literal: 2**30 - 1 is no small int on 30-bit ports)
     while sm.rx_fifo():
         word = int(sm.get())
         n = ((word >> 1) & 0x7FFF) + 1  # burst_pulses(), inlined
         moved = (n if word & 1 else 0 - n) * upp
         s[0] = ((s[0] + m) & k) - m + moved
-        s[3] = (((s[3] + m) & k) - m + moved) & 0x3FFFFFFF
+        s[3] = (((s[3] + m) & k) - m + moved) & wrap
         s[2] = ((s[2] + m) & k) - m - 1
 
 
