@@ -40,7 +40,24 @@ def build(machine, config_path=config.CONFIG_FILE, clock=None, write=None):
             cfg.errors.append("motor backend failed to start: %r" % (exc,))
     core = JointController(motor, clock or MonotonicClock(), cfg, log,
                            critical=(machine.disable_irq, machine.enable_irq))
+    _drop_boot_only()
     return core, cfg, log
+
+
+def _drop_boot_only():
+    """On the board, forget the Pico backend's configuration module (defaults and validation, used
+    only while building): out of sys.modules and its package, its code and tables are collected
+    (about 3 KB of heap). Importing it again simply reloads it."""
+    import sys
+    if sys.implementation.name != "micropython":
+        return
+    from . import pico
+    module = getattr(pico, "motor_config", None)
+    if module is None:
+        return
+    delattr(pico, "motor_config")
+    for name in [name for name, value in sys.modules.items() if value is module]:
+        del sys.modules[name]
 
 
 def bus_activity_probe(machine, bus):

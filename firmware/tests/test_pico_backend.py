@@ -12,7 +12,8 @@ from joint.pico import as5600 as enc
 from joint.pico import stepgen as sg
 from joint.pico import tmc2209 as tmc
 from joint.pico.as5600 import AS5600
-from joint.pico.motor import DEFAULTS, PicoStepper, validate_motor_config
+from joint.pico.motor import PicoStepper
+from joint.pico.motor_config import DEFAULTS, validate_motor_config
 from joint.pico.stepgen import StepGenerator
 from joint.pico.tmc2209 import TMC2209, TMCError
 from joint.fixed import ANGLE_Q, RPM_Q, STEPS_Q, to_q
