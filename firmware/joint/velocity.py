@@ -58,15 +58,19 @@ class FixedVelocityEstimator:
 
     The state is the tracking error (measured minus estimate, Q12 counts) rather than the estimate,
     so it stays small however far the joint turns. Gains are rounded once (ki / rate to 0.2 % at 1 kHz).
-    State and gains are the int32 array `s` ([rate, kp, kit, last count, error, vel, value]) that one
-    viper call updates (attributes cost ~6 us each on the chip).
+    State and gains are the int32 array `s` ([rate, kp, kit, last count, error, vel, value, error
+    bound]) that one viper call updates (attributes cost ~6 us each on the chip).
     """
 
     def __init__(self, rate_hz, kp=120.0, ki=1900.0):
         # Q12 counts of error -> Q8 counts/s: x 2**-4, then the gain, kept scaled by 2**3 (kp) and
         # 2**12 (ki / rate) so the products stay below 2**30 within _E_LIMIT.
-        self.s = array("i", (int(rate_hz), int(kp / 16 * 8 + 0.5), int(ki / rate_hz / 16 * 4096 + 0.5),
-                             0, 0, 0, 0))
+        kit = int(ki / rate_hz / 16 * 4096 + 0.5)
+        # The error bound keeps e * kit within 2**30 (viper works in 32-bit words): _E_LIMIT at
+        # 1 kHz, lower at slower loop rates, whose larger kit would overflow it.
+        limit = (1 << 30) // kit if kit > 0 else _E_LIMIT
+        self.s = array("i", (int(rate_hz), int(kp / 16 * 8 + 0.5), kit, 0, 0, 0, 0,
+                             limit if limit < _E_LIMIT else _E_LIMIT))
 
     @property
     def value(self):
@@ -95,10 +99,11 @@ def _update(s: ptr32, count: int) -> int:
     step = (vel * 16 + half) // rate if vel >= 0 else 0 - ((0 - vel * 16 + half) // rate)
     e = ((s[4] + m) & k) - m + ((count - (((s[3] + m) & k) - m)) << 12) - step
     s[3] = count
-    if e > _E_LIMIT:
-        e = _E_LIMIT
-    elif e < -_E_LIMIT:
-        e = -_E_LIMIT
+    limit = ((s[7] + m) & k) - m
+    if e > limit:
+        e = limit
+    elif e < 0 - limit:
+        e = 0 - limit
     s[4] = e
     value = ((s[6] + m) & k) - m + ((e * (((s[2] + m) & k) - m)) >> 12)
     s[6] = value
