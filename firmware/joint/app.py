@@ -18,6 +18,7 @@ from .v2 import ProtocolSwitch
 # addressed to the target is in progress. The v2 swap waits for it to clear.
 _RP2040_IC_STATUS = (0x40044070, 0x40048070)
 _SLV_ACTIVITY = 0x40
+_SLOW_EVERY_MASK = 3  # the console and the legacy protocol switch: every 4th main-loop iteration
 
 
 def build_motor(cfg):
@@ -39,7 +40,24 @@ def build(machine, config_path=config.CONFIG_FILE, clock=None, write=None):
             cfg.errors.append("motor backend failed to start: %r" % (exc,))
     core = JointController(motor, clock or MonotonicClock(), cfg, log,
                            critical=(machine.disable_irq, machine.enable_irq))
+    _drop_boot_only()
     return core, cfg, log
+
+
+def _drop_boot_only():
+    """On the board, forget the Pico backend's configuration module (defaults and validation, used
+    only while building): out of sys.modules and its package, its code and tables are collected
+    (about 3 KB of heap). Importing it again simply reloads it."""
+    import sys
+    if sys.implementation.name != "micropython":
+        return
+    from . import pico
+    module = getattr(pico, "motor_config", None)
+    if module is None:
+        return
+    delattr(pico, "motor_config")
+    for name in [name for name, value in sys.modules.items() if value is module]:
+        del sys.modules[name]
 
 
 def bus_activity_probe(machine, bus):
@@ -73,10 +91,11 @@ def join_bus(machine, core, cfg, log):
             return machine.I2CTarget(i2c.bus, cfg.address, **pins)
         return machine.I2CTarget(i2c.bus, cfg.address, mem=mem, mem_addrsize=MEM_ADDRSIZE, **pins)
 
-    def legacy_adapter(target):
-        return I2CTargetAdapter(core, target, i2c.whole_reply_writes)
-
     probe = bus_activity_probe(machine, i2c.bus)
+
+    def legacy_adapter(target):
+        return I2CTargetAdapter(core, target, i2c.whole_reply_writes, probe)
+
     try:
         return ProtocolSwitch(core, cfg.address, make_target, legacy_adapter,
                               (machine.disable_irq, machine.enable_irq), lambda target: probe)
@@ -99,15 +118,20 @@ def run(config_path=config.CONFIG_FILE):
     log.set_writer(stdio.write)
     debug = DebugConsole(core, stdio.read, stdio.write)
     next_ms = time.ticks_ms()
+    turn = 0
     try:
         while True:
             core.service()
-            if switch is not None:
+            turn = (turn + 1) & _SLOW_EVERY_MASK
+            # v2 serves its memory map every iteration; the legacy map only watches for a
+            # PROTOCOL request, which may wait a few milliseconds.
+            if switch is not None and (turn == 0 or switch.link is not None):
                 switch.service()
-            try:
-                debug.poll()
-            except Exception as exc:  # the console must never end the control loop
-                log.error("debug console: %r" % (exc,))
+            if turn == 0:  # a person's console: every few milliseconds is quick enough
+                try:
+                    debug.poll()
+                except Exception as exc:  # the console must never end the control loop
+                    log.error("debug console: %r" % (exc,))
             next_ms = time.ticks_add(next_ms, 1)
             if time.ticks_diff(time.ticks_ms(), next_ms) > 10:
                 next_ms = time.ticks_ms()  # fell behind (e.g. a long flash write): resynchronise

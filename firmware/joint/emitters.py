@@ -1,8 +1,8 @@
 """`micropython.native` and `micropython.viper` under both interpreters. MicroPython's compiler
 handles the decorators by their names, so modules write `@micropython.native` after
 `from .emitters import micropython`; under CPython the decorators do nothing and the same files run
-as plain Python. Viper code takes `ptr8` from here: on MicroPython the viper compiler turns
-`ptr8(buf)` into a raw byte pointer itself; under CPython it is the buffer, indexed the same way."""
+as plain Python. Viper code takes `ptr8` and `ptr32` from here: on MicroPython the viper compiler turns
+`ptr8(buf)` into a raw byte pointer itself (`ptr32`: 32-bit words); under CPython it is the buffer, indexed the same way."""
 
 try:
     import micropython
@@ -18,4 +18,8 @@ except ImportError:
 
 
 def ptr8(buf):
+    return buf
+
+
+def ptr32(buf):
     return buf

@@ -12,6 +12,8 @@ struct.pack("<f", n / 2**q).
 
 import struct
 
+from .emitters import micropython, ptr8
+
 try:
     from micropython import const
 except ImportError:
@@ -62,15 +64,48 @@ def f32_to_q(buf, off, q):
     return -value if b3 & 0x80 else value
 
 
-def pack_q(buf, off, n, q):
-    """Write float32(n / 2**q) little-endian at buf[off:off + 4] (exact while |n| < 2**24)."""
-    struct.pack_into("<f", buf, off, n)  # an int argument: converted in C, no float object
+@micropython.viper
+def pack_q(buf, off: int, n: int, q: int):
+    """Write float32(n / 2**q) little-endian at buf[off:off + 4] for |n| <= LIMIT, 0 <= q <= 30:
+    exactly struct.pack("<f", n / 2**q) (rounded to nearest, ties to even, beyond 2**24), in
+    machine integers: float32(m * 2**(e - 150)), m the 24-bit mantissa, e the biased exponent."""
+    p = ptr8(buf)
     if n == 0:
+        p[off] = 0
+        p[off + 1] = 0
+        p[off + 2] = 0
+        p[off + 3] = 0
         return
-    exp = ((buf[off + 3] & 0x7F) << 1) | (buf[off + 2] >> 7)
-    exp -= q  # |n| >= 1 and q <= 30: stays a normal number
-    buf[off + 3] = (buf[off + 3] & 0x80) | (exp >> 1)
-    buf[off + 2] = (buf[off + 2] & 0x7F) | ((exp & 1) << 7)
+    sign = 0
+    if n < 0:
+        sign = 0x80
+        n = 0 - n
+    e = 150 - q
+    m = n
+    if n >= 0x1000000:
+        s = 1
+        while (n >> s) >= 0x1000000:
+            s += 1
+        m = n >> s
+        rest = n - (m << s)
+        half = 1 << (s - 1)
+        if rest > half or (rest == half and (m & 1) != 0):
+            m += 1
+            if m == 0x1000000:
+                m = 0x800000
+                s += 1
+        e += s
+    else:
+        while m < 0x8000:
+            m <<= 8
+            e -= 8
+        while m < 0x800000:
+            m <<= 1
+            e -= 1
+    p[off] = m & 0xFF
+    p[off + 1] = (m >> 8) & 0xFF
+    p[off + 2] = ((m >> 16) & 0x7F) | ((e & 1) << 7)
+    p[off + 3] = sign | (e >> 1)
 
 
 def to_q(value, q):

@@ -1,16 +1,23 @@
 """The joint core's IRQ context: frame validation, flag updates, queueing, reply serving.
 
 Runs inside the I2C hard IRQ (`i2c_target.py`) and must never allocate: it validates a frame with
-the protocol's byte-level checks, applies the command's flag changes as integer updates (so the
-reply already shows the command's effect, as the original firmware's did), copies the command into
-a preallocated queue slot and answers from reply bytes the main loop packed in advance.
+per-register tables built from the protocol spec at boot (the same verdicts as
+`Register.check_write`, one lookup and a few byte compares instead of method calls per field),
+applies the command's flag changes as integer updates (so the reply already shows the command's
+effect, as the original firmware's did), copies the command into a preallocated queue slot and
+answers from reply bytes the main loop packed in advance.
+
+Every readable register's reply cache is the head of its own wire buffer, `payload + flags`: a
+read writes the flags into the last byte and hands the whole buffer to the port, with no copy.
 """
 
-from .emitters import micropython
+from .emitters import micropython, ptr8
 
 from .protocol import (
-    BY_ADDR, FLAG_ERROR, FLAG_NOTENABLED, FLAG_STALL, HOMEOFFSET, LASTERROR, MAX_FRAME, PING, REJECT_BUSY,
-    REJECT_DISABLED, REJECT_NONE, REJECT_QUEUE_FULL, REJECT_UNKNOWN_REGISTER, STOP,
+    BY_ADDR, F32, FLAG_ERROR, FLAG_NOTENABLED, FLAG_STALL, HOMEOFFSET, I32, LASTERROR, MAX_FRAME,
+    HOME, MOVEANGLE, MOVESTEPS, MOVETOANGLE, PING, REJECT_BUSY, REJECT_DISABLED,
+    REJECT_HOMING_SENSITIVITY, REJECT_LENGTH, REJECT_NONE, REJECT_NOT_ENABLED, REJECT_QUEUE_FULL,
+    REJECT_STALLED, REJECT_UNKNOWN_REGISTER, REJECT_UNSUPPORTED, REJECT_VALUE, SETRPM, STOP, U8, U16,
 )
 
 try:
@@ -22,32 +29,151 @@ except ImportError:
 QUEUE_SLOTS = const(16)  # a power of two, so slot = counter % slots survives counter wrap
 # A slot: the frame, then what held when it was accepted: the flags right after it, the halt epoch
 # and the stop epoch (8 bits each; a slot lives for about a millisecond).
-SLOT = MAX_FRAME + 3
-SLOT_FLAGS = MAX_FRAME
-SLOT_HALTS = MAX_FRAME + 1
-SLOT_STOPS = MAX_FRAME + 2
+SLOT = const(8)
+SLOT_FLAGS = const(5)
+SLOT_HALTS = const(6)
+SLOT_STOPS = const(7)
 MOTION_BLOCKED = FLAG_STALL | FLAG_NOTENABLED
 # IRQ counters wrap here: +1 must stay a small int on 32-bit ports (largest 2**30 - 1) even before
 # the mask, or the hard IRQ would allocate a long int.
 COUNTER_MASK = const(0x1FFFFFFF)
 
+# The protocol's numbers the viper code compares with, as constants of this module (viper cannot
+# compare with another module's names); checked against protocol.py below.
+_R_NONE = const(0)
+_R_UNKNOWN_REGISTER = const(1)
+_R_LENGTH = const(3)
+_R_VALUE = const(4)
+_R_BUSY = const(5)
+_R_QUEUE_FULL = const(6)
+_R_DISABLED = const(7)
+_FLAG_STALL = const(0x01)
+_R_NOT_ENABLED = const(8)
+_R_STALLED = const(9)
+_R_HOMING_SENSITIVITY = const(10)
+_FLAG_NOTENABLED = const(0x08)
+_HOMEOFFSET = const(0x2E)
+_STOP = const(0x29)
+_SETRPM = const(0x11)
+if ((_R_NONE, _R_UNKNOWN_REGISTER, _R_LENGTH, _R_VALUE, _R_BUSY, _R_QUEUE_FULL, _R_DISABLED,
+     _R_NOT_ENABLED, _R_STALLED, _R_HOMING_SENSITIVITY, _FLAG_STALL, _FLAG_NOTENABLED, _HOMEOFFSET,
+     _STOP, _SETRPM, SLOT_FLAGS, SLOT)
+        != (REJECT_NONE, REJECT_UNKNOWN_REGISTER, REJECT_LENGTH, REJECT_VALUE, REJECT_BUSY,
+            REJECT_QUEUE_FULL, REJECT_DISABLED, REJECT_NOT_ENABLED, REJECT_STALLED,
+            REJECT_HOMING_SENSITIVITY, FLAG_STALL, FLAG_NOTENABLED, HOMEOFFSET, STOP, SETRPM,
+            MAX_FRAME, MAX_FRAME + 3)):
+    raise ImportError("irq.py constants differ from protocol.py")
+
+# The frame table (`_ftab`, one bytearray so viper code reaches it through one pointer): by register
+# address (every register is below _REGISTERS; any other address is unknown), the reject reason
+# whatever the payload (or REJECT_NONE), the frame length a payload needs, how the payload is
+# checked, the spec's flag effects, what the joint's state may refuse, then the payload limits.
+_REGISTERS = const(64)
+REGISTER_SPACE = const(64)  # for i2c_target.py
+_PRE = const(0)
+_WLEN = const(64)
+FTAB_WLEN = const(64)  # for i2c_target.py
+_CHECK = const(128)
+_SETS = const(192)
+_CLEARS = const(256)
+_ZERO_SETS = const(320)
+_BLOCKS = const(384)
+_REFUSE = const(448)  # _MOTION or _HOMING
+_LO = const(512)  # CHECK_BYTES: payload byte i within [_LO, _HI] at addr*4 + i
+_HI = const(768)
+_LIMITS = const(1024)  # CHECK_F32: the |value| limits as 16-bit halves (low high16, low low16,
+#                        high high16, high low16), little-endian, at addr*8; CHECK_U16: low, high
+_FTAB_SIZE = const(1536)
+_MOTION = const(1)  # refused while stalled or not enabled (SETRPM: unless 0 rpm)
+_HOMING = const(2)  # refused at or below the homing sensitivity noise floor
+
+CHECK_BYTES = const(0)  # every field U8
+CHECK_F32 = const(1)  # one F32 field: finite, |value| within the limits
+CHECK_U16 = const(2)  # one U16 field
+CHECK_ANY = const(3)  # one I32 field: any value
+
+
+def _payload_check(reg):
+    """The check kind for a register's write fields; ValueError if the tables cannot check them."""
+    kinds = [f.kind for f in reg.write]
+    if all(k == U8 for k in kinds) and len(kinds) <= 4:
+        return CHECK_BYTES
+    if kinds == [F32]:
+        return CHECK_F32
+    if kinds == [U16]:
+        return CHECK_U16
+    if kinds == [I32]:
+        return CHECK_ANY
+    raise ValueError("the IRQ frame tables cannot check register %s" % reg.name)
+
+
+def _put16(table, off, value):
+    table[off] = value & 0xFF
+    table[off + 1] = value >> 8
+
+
+def frame_table():
+    """The frame table (layout above) for the protocol's registers."""
+    t = bytearray(_FTAB_SIZE)
+    for addr in range(256):
+        reg = BY_ADDR[addr]
+        if addr >= _REGISTERS:
+            if reg is not None:
+                raise ValueError("register %s is outside the IRQ frame table" % reg.name)
+        elif reg is None:
+            t[_PRE + addr] = REJECT_UNKNOWN_REGISTER
+        elif not reg.supported:
+            t[_PRE + addr] = REJECT_UNSUPPORTED
+        elif reg.wsize == 0:
+            t[_PRE + addr] = REJECT_LENGTH
+        else:
+            kind = _payload_check(reg)
+            t[_WLEN + addr] = 1 + reg.wsize
+            t[_CHECK + addr] = kind
+            t[_SETS + addr] = reg.sets
+            t[_CLEARS + addr] = reg.clears
+            t[_ZERO_SETS + addr] = reg.zero_sets
+            t[_BLOCKS + addr] = reg.blocking
+            if addr in (SETRPM, MOVETOANGLE, MOVEANGLE, MOVESTEPS):
+                t[_REFUSE + addr] = _MOTION
+            elif addr == HOME:
+                t[_REFUSE + addr] = _HOMING
+            if kind == CHECK_BYTES:
+                for i, f in enumerate(reg.write):
+                    t[_LO + addr * 4 + i] = f.lo
+                    t[_HI + addr * 4 + i] = f.hi
+            elif kind == CHECK_F32:
+                f = reg.write[0]
+                for i, half in enumerate((f._lo_hi16, f._lo_lo16, f._hi_hi16, f._hi_lo16)):
+                    _put16(t, _LIMITS + addr * 8 + 2 * i, half)
+            elif kind == CHECK_U16:
+                _put16(t, _LIMITS + addr * 8, reg.write[0].lo)
+                _put16(t, _LIMITS + addr * 8 + 2, reg.write[0].hi)
+    return t
+
 
 class IrqPath:
     """JointController's IRQ-side methods (mixed into it): no allocation anywhere here.
 
-    A read is served from `_reply_cache` (the selected register's reply bytes) and `_reply_n`
-    (their count, 0 for a flags-only reply), looked up once when the register is selected.
+    A read is served from `_reply_wire`, the selected register's wire buffer (the flags go in its
+    last byte, the only one of a flags-only reply), selected once when the register is written.
     """
 
     def _init_irq_tables(self):
-        """Per-address reply sizes (0: not readable), so selecting a register is one lookup."""
-        sizes = bytearray(256)
+        """Wire buffers for the reply caches and the per-register frame tables, from the spec."""
+        self._wires = [None] * _REGISTERS
         for addr in range(256):
-            if self._cache[addr] is not None:
-                sizes[addr] = len(self._cache[addr])
-        self._rsize = sizes
-        self._reply_cache = self._cache[PING]
-        self._reply_n = sizes[PING]
+            cache = self._cache[addr]
+            if cache is not None:
+                n = len(cache)
+                wire = bytearray(n + 1)
+                wire[:n] = cache
+                view = memoryview(wire)
+                self._cache[addr] = view[:n]  # the main loop packs here, as before
+                self._wires[addr] = view
+        self._flags_wire = memoryview(bytearray(1))
+        self._ftab = frame_table()
+        self._reply_wire = self._wires[PING]
         self._reply_err = 0
 
     def host_seen(self):
@@ -55,65 +181,120 @@ class IrqPath:
         self.host_us = self._ticks_us()  # when: the deadman counts from here, not from the loop
         self.transactions = (self.transactions + 1) & COUNTER_MASK
 
-    @micropython.native
-    def on_frame(self, frame, n):
+    @micropython.viper
+    def on_frame(self, frame, n: int):
         """A write of n bytes (register + payload) ended. `frame` holds at most MAX_FRAME bytes."""
         if n == 0:
             return  # address probe (bus scan)
-        addr = frame[0]
+        f = ptr8(frame)
+        t = ptr8(self._ftab)
+        addr = f[0]
+        if addr >= _REGISTERS:
+            self._reject(addr, _R_UNKNOWN_REGISTER)
+            return
         if n == 1:
-            size = self._rsize[addr]
-            if size:
-                self._reply_cache = self._cache[addr]
-                self._reply_n = size
+            wire = self._wires[addr]
+            if wire:
+                self._reply_wire = wire
                 self._reply_err = 0
                 return
-        reg = BY_ADDR[addr]
-        if reg is None:
-            self._reject(addr, REJECT_UNKNOWN_REGISTER)
-            return
-        reason = reg.check_write(frame, 1, n - 1)
-        if reason == REJECT_NONE:
+        # The payload against the spec, as Register.check_write judges it.
+        reason = t[_PRE + addr]
+        if reason == _R_NONE and n != t[_WLEN + addr]:
+            reason = _R_LENGTH
+        if reason == _R_NONE:
+            kind = t[_CHECK + addr]
+            if kind == CHECK_BYTES:
+                lo = _LO + addr * 4 - 1
+                hi = _HI + addr * 4 - 1
+                i = 1
+                while i < n:
+                    if f[i] < t[lo + i] or f[i] > t[hi + i]:
+                        reason = _R_VALUE
+                    i += 1
+            elif kind == CHECK_F32:
+                o = _LIMITS + addr * 8
+                b3 = f[4] & 0x7F
+                b2 = f[3]
+                hi16 = (b3 << 8) | b2
+                lo16 = (f[2] << 8) | f[1]
+                low_hi = t[o] | (t[o + 1] << 8)
+                low_lo = t[o + 2] | (t[o + 3] << 8)
+                high_hi = t[o + 4] | (t[o + 5] << 8)
+                high_lo = t[o + 6] | (t[o + 7] << 8)
+                if b3 == 0x7F and b2 & 0x80:
+                    reason = _R_VALUE  # NaN or infinity
+                elif hi16 < low_hi or (hi16 == low_hi and lo16 < low_lo):
+                    reason = _R_VALUE
+                elif hi16 > high_hi or (hi16 == high_hi and lo16 > high_lo):
+                    reason = _R_VALUE
+            elif kind == CHECK_U16:
+                o = _LIMITS + addr * 8
+                value = f[1] | (f[2] << 8)
+                if value < (t[o] | (t[o + 1] << 8)) or value > (t[o + 2] | (t[o + 3] << 8)):
+                    reason = _R_VALUE
+        # Then the joint's state.
+        flags = int(self.flags)
+        q_in = int(self._q_in)
+        if reason == _R_NONE:
             if self.disabled:
-                reason = REJECT_DISABLED
-            elif reg.blocking and self._blocking_live():
-                reason = REJECT_BUSY
-            elif (addr != HOMEOFFSET and addr != STOP
-                  and ((self._q_in - self._q_out) & COUNTER_MASK) >= QUEUE_SLOTS):
-                reason = REJECT_QUEUE_FULL
+                reason = _R_DISABLED
+            elif t[_BLOCKS + addr] and bool(self._blocking_live()):
+                reason = _R_BUSY
+            elif (addr != _HOMEOFFSET and addr != _STOP
+                  and ((q_in - int(self._q_out)) & COUNTER_MASK) >= QUEUE_SLOTS):
+                reason = _R_QUEUE_FULL
             else:
-                reason = self._refusal(addr, frame)  # supervise.py: motion in this state, HOME limits
-        if reason != REJECT_NONE:
+                # What the joint's state refuses: motion while stalled or not enabled (0 rpm
+                # always goes through), HOME at or below the sensitivity noise floor.
+                refuse = t[_REFUSE + addr]
+                if refuse == _HOMING:
+                    floor = int(self._homing_floor) + ((f[2] * int(self._homing_floor_q)) >> 10)
+                    if f[3] <= floor:
+                        reason = _R_HOMING_SENSITIVITY
+                elif refuse == _MOTION:
+                    if addr != _SETRPM or f[1] | f[2] | f[3] | (f[4] & 0x7F):
+                        if flags & _FLAG_STALL:
+                            reason = _R_STALLED
+                        elif flags & _FLAG_NOTENABLED:
+                            reason = _R_NOT_ENABLED
+        if reason != _R_NONE:
             self._reject(addr, reason)
             return
-        flags = (self.flags | reg.sets) & ~reg.clears
-        if reg.zero_sets and frame[1] == 0:
-            flags |= reg.zero_sets
+        clears = t[_CLEARS + addr]
+        flags = (flags | t[_SETS + addr]) & (0xFF ^ clears)
+        if f[1] == 0:
+            flags |= t[_ZERO_SETS + addr]
         self.flags = flags
-        if reg.clears & FLAG_STALL:
-            self.stall_rearms = (self.stall_rearms + 1) & 0xFF
-        if addr == STOP:
+        if clears & _FLAG_STALL:
+            self.stall_rearms = (int(self.stall_rearms) + 1) & 0xFF
+        if addr == _STOP:
             # Immediate, as in the original's ISR: cancels the running blocking command and any
             # motion still queued; the main loop commands 0 RPM next.
-            self.stops = (self.stops + 1) & 0xFF
-            self.halts = (self.halts + 1) & 0xFF
-        elif addr == HOMEOFFSET:
-            cache = self._cache[HOMEOFFSET]
-            for i in range(4):
-                cache[i] = frame[1 + i]
+            self.stops = (int(self.stops) + 1) & 0xFF
+            self.halts = (int(self.halts) + 1) & 0xFF
+        elif addr == _HOMEOFFSET:
+            cache = ptr8(self._cache[_HOMEOFFSET])
+            cache[0] = f[1]
+            cache[1] = f[2]
+            cache[2] = f[3]
+            cache[3] = f[4]
         else:
-            base = (self._q_in % QUEUE_SLOTS) * SLOT
-            queue = self._queue
-            for i in range(n):
-                queue[base + i] = frame[i]
+            base = (q_in & (QUEUE_SLOTS - 1)) * SLOT
+            queue = ptr8(self._queue)
+            i = 0
+            while i < n:
+                queue[base + i] = f[i]
+                i += 1
+            stops = int(self.stops)
             queue[base + SLOT_FLAGS] = flags
-            queue[base + SLOT_HALTS] = self.halts
-            queue[base + SLOT_STOPS] = self.stops
-            if reg.blocking:
-                self._blocking_stops = self.stops
-                self._blocking_in = (self._blocking_in + 1) & COUNTER_MASK
-            self._q_in = (self._q_in + 1) & COUNTER_MASK
-        self._reply_n = 0
+            queue[base + SLOT_HALTS] = int(self.halts)
+            queue[base + SLOT_STOPS] = stops
+            if t[_BLOCKS + addr]:
+                self._blocking_stops = stops
+                self._blocking_in = (int(self._blocking_in) + 1) & COUNTER_MASK
+            self._q_in = (q_in + 1) & COUNTER_MASK
+        self._reply_wire = self._flags_wire
         self._reply_err = 0
 
     def _blocking_live(self):
@@ -123,7 +304,7 @@ class IrqPath:
         return self._task is not None and self._task_stops == self.stops
 
     def _reject(self, addr, reason):
-        self._reply_n = 0
+        self._reply_wire = self._flags_wire
         self._reply_err = FLAG_ERROR
         self.rejects = (self.rejects + 1) & 0xFFFF
         cache = self._cache[LASTERROR]
@@ -135,12 +316,10 @@ class IrqPath:
     @micropython.native
     def reply_into(self, out):
         """Write the reply (payload + flags) right-aligned at the end of `out`; return its length."""
-        end = len(out) - 1
-        out[end] = self.flags | self._reply_err
-        n = self._reply_n
-        if n:
-            cache = self._reply_cache
-            start = end - n
-            for i in range(n):
-                out[start + i] = cache[i]
-        return n + 1
+        wire = self._reply_wire
+        n = len(wire)
+        wire[n - 1] = self.flags | self._reply_err
+        start = len(out) - n
+        for i in range(n):
+            out[start + i] = wire[i]
+        return n

@@ -15,6 +15,7 @@ firmware runs it inside the I2C IRQ and the host runs the very same check before
 """
 
 import struct
+import sys
 
 try:
     from micropython import const
@@ -28,6 +29,9 @@ except ImportError:
     from zlib import crc32
 
 from .protocol_v2 import spec_bytes as _v2_spec_bytes
+
+# Register docs are for people (the host's shell and docs); the board does not keep them (heap).
+_KEEP_DOCS = sys.implementation.name != "micropython"
 
 PROTOCOL_VERSION = const(2)  # the newest protocol this firmware serves (IDENTITY); see protocol_v2
 
@@ -121,16 +125,33 @@ class Field:
     any value. CHAR and U32 fields only appear in replies.
     """
 
+    # Defaults live in the class: on the board every instance attribute costs heap.
+    unit = ""
+    lo = 0
+    hi = 0
+
     def __init__(self, name, kind, unit="", lo=0, hi=0):
         self.name = name
         self.kind = kind
-        self.unit = unit
-        self.lo = lo
-        self.hi = hi
-        self.code, self.size = _CODES[kind]
+        if unit:
+            self.unit = unit
+        if lo:
+            self.lo = lo
+        if hi:
+            self.hi = hi
         if kind == F32:
             self._lo_hi16, self._lo_lo16 = _f32_halves(lo)
             self._hi_hi16, self._hi_lo16 = _f32_halves(hi)
+
+    @property
+    def code(self):
+        """struct format character (derived, not stored: heap on the board)."""
+        return _CODES[self.kind][0]
+
+    @property
+    def size(self):
+        """Bytes on the wire."""
+        return _CODES[self.kind][1]
 
     def check(self, buf, off):
         """True if the encoded value at buf[off:] is valid. Allocation-free (runs in the IRQ)."""
@@ -167,26 +188,50 @@ class Register:
     `zero_sets` is applied when the first payload byte is 0 (a current of 0 disables the joint).
     """
 
+    # Defaults live in the class and only other values in the instance: on the board every
+    # instance attribute costs heap, and most registers keep most defaults.
+    write = ()
+    read = ()
+    blocking = False
+    sets = 0
+    clears = 0
+    zero_sets = 0
+    supported = True
+    doc = ""
+    wsize = 0
+    rsize = 0
+
     def __init__(self, addr, name, write=(), read=(), blocking=False, sets=0, clears=0,
                  zero_sets=0, supported=True, doc=""):
         self.addr = addr
         self.name = name
-        self.write = write
-        self.read = read
-        self.blocking = blocking
-        self.sets = sets
-        self.clears = clears
-        self.zero_sets = zero_sets
-        self.supported = supported
-        self.doc = doc
-        self.wsize = 0
-        for f in write:
-            self.wsize += f.size
-        self.rsize = 0
-        for f in read:
-            self.rsize += f.size
-        self.wfmt = "<" + "".join(f.code for f in write)
-        self.rfmt = "<" + "".join(f.code for f in read)
+        if write:
+            self.write = write
+            self.wsize = sum(f.size for f in write)
+        if read:
+            self.read = read
+            self.rsize = sum(f.size for f in read)
+        if blocking:
+            self.blocking = blocking
+        if sets:
+            self.sets = sets
+        if clears:
+            self.clears = clears
+        if zero_sets:
+            self.zero_sets = zero_sets
+        if not supported:
+            self.supported = supported
+        if doc and _KEEP_DOCS:
+            self.doc = doc
+
+    @property
+    def wfmt(self):
+        """struct format of the write payload (built when asked: encode and decode allocate anyway)."""
+        return "<" + "".join(f.code for f in self.write)
+
+    @property
+    def rfmt(self):
+        return "<" + "".join(f.code for f in self.read)
 
     @property
     def readable(self):

@@ -18,23 +18,13 @@ braking at dmax so that it lands on xtarget. A target behind the motion, or clos
 distance, brakes at dmax, reverses and comes back. Lowering vmax below |v| decelerates at dmax. A
 relabel (set_position) in positioning mode continues toward xtarget from the new x. Velocity modes
 use amax for acceleration and deceleration alike; HOLD keeps v. step() integrates each ramp segment
-exactly, so the result does not depend on how dt is sliced.
+exactly, so the result does not depend on how dt is sliced. The board runs its integer
+twin, joint.tickramp.TickRamp (this module is the simulator's: not loaded on the chip).
 """
-
-from .emitters import micropython
 
 import math
 
-try:
-    from micropython import const
-except ImportError:
-    def const(x):
-        return x
-
-POSITIONING = const(0)
-VELOCITY_POS = const(1)
-VELOCITY_NEG = const(2)
-HOLD = const(3)
+from .tickramp import HOLD, POSITIONING, VELOCITY_NEG, VELOCITY_POS
 
 _BRAKE_EARLY = 1e-3  # usteps: rounding slack when deciding that the braking point is reached
 _LAND_SLACK = 1.0  # usteps: a brake ending this far past the target still lands on it (VSTOP)
@@ -143,115 +133,3 @@ class Ramp:
         self.x = x
         self.v = v
         return x - x0
-
-
-class TickRamp:
-    """The same ramp generator in integers, advanced one control tick at a time (the chip's).
-
-    Every float on the board is a heap object, so the 1 kHz path runs this instead of `Ramp`:
-
-        r.vmax, r.amax, r.dmax   Q16 usteps per tick, per tick^2 (>= 0)
-        r.mode, r.xtarget        as Ramp (xtarget int usteps)
-        r.tick()                 advance one tick
-        r.x, r.xf, r.v           position: x usteps + xf / 65536; signed velocity, Q16 usteps/tick
-        r.xactual(), r.set_position(n), r.position_reached()
-
-    Positions advance by the trapezoid rule, so a constant acceleration is integrated exactly.
-    Positioning brakes when the distance left is within the braking distance at DMAX, then
-    decelerates at the rate that lands on the target (DMAX, give or take the tick's rounding).
-    All arithmetic stays within small ints (Q16 speed < 2**27, the squares taken in Q8).
-    """
-
-    def __init__(self):
-        self.x = 0
-        self.xf = 0
-        self.v = 0
-        self.mode = POSITIONING
-        self.xtarget = 0
-        self.vmax = 0
-        self.amax = 0
-        self.dmax = 0
-
-    def xactual(self):
-        return self.x + 1 if self.xf >= 0x8000 else self.x
-
-    def set_position(self, x):
-        self.x = x
-        self.xf = 0
-
-    def position_reached(self):
-        return self.mode == POSITIONING and self.v == 0 and self.x == self.xtarget and self.xf == 0
-
-    @micropython.native
-    def tick(self):
-        v = self.v
-        mode = self.mode
-        if mode == POSITIONING:
-            d = self.xtarget - self.x
-            if d == 0 and v == 0 and self.xf == 0:
-                return
-            s = 1 if d > 0 or (d == 0 and v < 0) else -1
-            u = v * s
-            dist = d * s  # whole usteps toward the target
-            dm = self.dmax if self.dmax > 0 else 1
-            if u < 0:
-                un = u + dm  # moving away: brake, then come back
-            else:
-                u8 = u >> 8
-                if u8 < 0x8000:
-                    brake = (u8 * u8) // (2 * dm)  # usteps to stop at dm
-                    near = brake + (u >> 16) >= dist
-                else:
-                    near = ((u8 >> 4) * (u8 >> 4)) // (2 * dm) + (u >> 24) >= dist >> 8
-                if near:
-                    if dist <= 0 or u <= 0:
-                        self._land()
-                        return
-                    if u8 < 0x8000:
-                        a = (u8 * u8) // (2 * dist)
-                    else:
-                        a = ((u8 >> 4) * (u8 >> 4)) // ((dist >> 7) or 1)
-                    if a < 1:
-                        a = 1
-                    if u <= a or dist <= 1:
-                        self._land()
-                        return
-                    un = u - a
-                elif u > self.vmax:
-                    un = u - dm
-                    if un < self.vmax:
-                        un = self.vmax
-                else:
-                    un = u + self.amax
-                    if un > self.vmax:
-                        un = self.vmax
-                    if un == 0:
-                        return  # vmax 0: parked short of the target
-            xf = self.xf + s * ((u + un) >> 1)
-            self.x += xf >> 16
-            self.xf = xf & 0xFFFF
-            self.v = s * un
-        elif mode == HOLD:
-            xf = self.xf + v
-            self.x += xf >> 16
-            self.xf = xf & 0xFFFF
-        else:
-            vt = self.vmax if mode == VELOCITY_POS else -self.vmax
-            am = self.amax
-            if v < vt:
-                vn = v + am
-                if vn > vt:
-                    vn = vt
-            else:
-                vn = v - am
-                if vn < vt:
-                    vn = vt
-            xf = self.xf + ((v + vn) >> 1)  # trapezoid rule, Q16 usteps
-            self.x += xf >> 16
-            self.xf = xf & 0xFFFF
-            self.v = vn
-
-    def _land(self):
-        self.x = self.xtarget
-        self.xf = 0
-        self.v = 0

@@ -1,5 +1,5 @@
-"""The joint core's supervision: stall detection, the deadman and refusals, run by the main loop
-(`_refusal` by the IRQ path).
+"""The joint core's supervision: stall detection and the deadman, run by the main loop (what
+the joint's state refuses, the IRQ path decides: irq.py).
 
 Deadman. A freshly booted joint keeps the original's: more than `deadman_ms` (50) without a
 transaction while the velocity setpoint is not 0 stops it, so original-host programs that poll at
@@ -15,11 +15,9 @@ tracking detector (tracking.py, the encoder no longer following the field);
 `set_stall_detector()` switches at run time (bench, tests).
 """
 
+from .emitters import micropython
 from .fixed import muldiv
-from .protocol import (
-    FLAG_BUSY, FLAG_NOTENABLED, FLAG_NOTHOMED, FLAG_STALL, HOME, MOVEANGLE, MOVESTEPS, MOVETOANGLE,
-    REJECT_HOMING_SENSITIVITY, REJECT_NONE, REJECT_NOT_ENABLED, REJECT_STALLED, SETRPM,
-)
+from .protocol import FLAG_BUSY, FLAG_NOTENABLED, FLAG_NOTHOMED, FLAG_STALL
 
 try:
     from micropython import const
@@ -55,25 +53,6 @@ class Supervisor:
         return self.hal.angle_moved() + self.zero_offset
 
     # ---- IRQ path: no allocation ----
-
-    def _refusal(self, addr, frame):
-        """Why a well-formed frame is refused in the joint's present state (REJECT_NONE: taken)."""
-        if addr == HOME:
-            floor = self._homing_floor + ((frame[2] * self._homing_floor_q) >> 10)
-            return REJECT_HOMING_SENSITIVITY if frame[3] <= floor else REJECT_NONE
-        if addr == SETRPM:
-            if frame[1] == 0 and frame[2] == 0 and frame[3] == 0 and frame[4] & 0x7F == 0:
-                return REJECT_NONE  # 0 rpm always goes through
-        elif addr != MOVETOANGLE and addr != MOVEANGLE and addr != MOVESTEPS:
-            return REJECT_NONE
-        flags = self.flags
-        if flags & FLAG_STALL:
-            return REJECT_STALLED
-        if flags & FLAG_NOTENABLED:
-            return REJECT_NOT_ENABLED
-        return REJECT_NONE
-
-    # ---- main loop ----
 
     def _check_stall(self):
         """The original detector, every stall.sample_time."""
@@ -113,13 +92,19 @@ class Supervisor:
             return True
         return self.hal.driver_rpm() != 0
 
+    @micropython.native
     def _check_deadman(self):
         if self._safe_pending:  # this deadman's quick stop is braking: decided once, not per tick
             self._safe_action()
             return
-        if not self._motion_active():
+        timeout = self.watchdog_ms
+        if timeout:
+            if not self._motion_active():
+                return
+        elif self.qd_set == 0:  # the original's deadman: the velocity setpoint only
             return
-        timeout = self.watchdog_ms or self.cfg.deadman_ms
+        else:
+            timeout = self._deadman_ms
         clock = self.clock
         silent = clock.ticks_diff(clock.ticks_us(), self._last_host_us) // 1000  # from the IRQ's stamp
         if silent < timeout or not self._halt(FLAG_NOTENABLED, transactions=self._seen_transactions):

@@ -58,8 +58,16 @@ class RotorEncoderBus:
         self._sm = sm
         self.offset = 1000
         self._conf = bytearray(2)
+        self._pointer = -1
 
     def readfrom_mem_into(self, addr, reg, buf):
+        self._pointer = reg
+        self.readfrom_into(addr, buf)
+        if reg != RAW_ANGLE:
+            self._pointer = -1  # advanced past the register: a pointer-less read must set it first
+
+    def readfrom_into(self, addr, buf):
+        reg = self._pointer
         if reg == RAW_ANGLE:
             raw = (self._sm.rotor * 2 // 25 + self.offset) & 0xFFF
             buf[0] = raw >> 8

@@ -7,7 +7,8 @@ joint.velocity.VelocityEstimator) and against struct's float32 encoding, on both
 import struct
 
 from joint.fixed import LIMIT, f32_to_q, i32, muldiv, pack_q, to_q
-from joint.ramp import HOLD, POSITIONING, VELOCITY_NEG, VELOCITY_POS, Ramp, TickRamp
+from joint.ramp import HOLD, POSITIONING, VELOCITY_NEG, VELOCITY_POS, Ramp
+from joint.tickramp import TickRamp
 from joint.velocity import FixedVelocityEstimator, VelocityEstimator
 from harness import Xorshift
 
@@ -33,9 +34,15 @@ def test_float32_payloads_decode_to_rounded_fixed_point():
 
 def test_fixed_point_packs_the_same_float32_bytes_as_struct():
     rng = Xorshift(11)
-    for _ in range(3000):
-        n = rng.below(1 << 25) - (1 << 24)
-        for q in (0, 12, 16):
+    edges = [0, 1, -1, (1 << 24) - 1, 1 << 24, (1 << 24) + 1, (1 << 24) + 3, (1 << 25) + 2,
+             (1 << 25) + 6, (1 << 26) - 1, LIMIT, -LIMIT, 0x2AAAAAAA, 0x3FFFFFC0, 0x3FFFFFE0]
+    for i in range(4000):
+        if i < len(edges):
+            n = edges[i]
+        else:
+            bits = 1 + rng.below(30)  # every magnitude up to LIMIT, rounding included
+            n = rng.below(1 << bits) - (1 << (bits - 1))
+        for q in (0, 4, 12, 16):
             buf = bytearray(4)
             pack_q(buf, 0, n, q)
             assert bytes(buf) == struct.pack("<f", n / (1 << q)), (n, q)

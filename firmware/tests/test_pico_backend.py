@@ -12,7 +12,8 @@ from joint.pico import as5600 as enc
 from joint.pico import stepgen as sg
 from joint.pico import tmc2209 as tmc
 from joint.pico.as5600 import AS5600
-from joint.pico.motor import DEFAULTS, PicoStepper, validate_motor_config
+from joint.pico.motor import PicoStepper
+from joint.pico.motor_config import DEFAULTS, validate_motor_config
 from joint.pico.stepgen import StepGenerator
 from joint.pico.tmc2209 import TMC2209, TMCError
 from joint.fixed import ANGLE_Q, RPM_Q, STEPS_Q, to_q
@@ -116,18 +117,30 @@ class FakeAS5600Bus:
         self.conf = bytearray(2)
         self.fail = False
         self.reads = 0
+        self.pointer = 0  # the address pointer: stays on RAW ANGLE, advances past other registers
 
     def readfrom_mem_into(self, addr, reg, buf):
         if self.fail or addr != 0x36:
             raise OSError(5)
+        self.pointer = reg
+        self.readfrom_into(addr, buf)
+
+    def readfrom_into(self, addr, buf):
+        if self.fail or addr != 0x36:
+            raise OSError(5)
         self.reads += 1
+        reg = self.pointer
         if reg == enc.RAW_ANGLE:
             buf[0] = (self.raw >> 8) | 0xF0  # the unused high nibble must be masked
             buf[1] = self.raw & 0xFF
-        elif reg == enc.STATUS:
+            return
+        for i in range(len(buf)):
+            buf[i] = 0xFF
+        if reg == enc.STATUS:
             buf[0] = self.status
         elif reg == enc.CONF:
             buf[0], buf[1] = self.conf[0], self.conf[1]
+        self.pointer = reg + len(buf)
 
     def writeto_mem(self, addr, reg, buf):
         if self.fail or addr != 0x36:
@@ -408,6 +421,29 @@ def test_as5600_failed_read_drops_the_sample():
     assert sensor.sample() and sensor.count == 90
     sensor.set_home()
     assert sensor.count == 0 and sensor.degrees() == 0.0
+
+
+def test_as5600_samples_without_rewriting_its_pointer_until_another_register_is_read():
+    bus = FakeAS5600Bus()
+    sensor = AS5600(bus)
+    bus.raw = 100
+    sensor.start()
+    writes = []
+    set_pointer = bus.readfrom_mem_into
+    bus.readfrom_mem_into = lambda addr, reg, buf: (writes.append(reg), set_pointer(addr, reg, buf))
+    for raw in (110, 120):
+        bus.raw = raw
+        assert sensor.sample()
+    assert writes == [] and sensor.count == 20
+    assert sensor.status() == 0x20  # the pointer now lies past STATUS
+    bus.raw = 130
+    assert sensor.sample() and sensor.count == 30
+    assert writes == [enc.STATUS, enc.RAW_ANGLE]
+    bus.fail = True
+    assert not sensor.sample()
+    bus.fail = False
+    bus.raw = 140
+    assert sensor.sample() and sensor.count == 40 and writes[-1] == enc.RAW_ANGLE
 
 
 def test_as5600_conf_register():

@@ -80,8 +80,9 @@ def test_reads_return_values_the_main_loop_packed():
     rig.motor.angle, rig.motor.rpm, rig.motor.ramp_rpm, rig.motor.error = 12.5, -3.25, 7.0, 42.0
     rig.run_ms(1)
     assert rig.xfer(bytes([P.ANGLEMOVED]), 5) == struct.pack("<f", 12.5) + bytes([OFF]), "every ms"
-    assert rig.xfer(bytes([P.GETENCODERRPM]), 5) == struct.pack("<f", -3.25) + bytes([OFF]), "every ms"
-    rig.run_ms(1)  # the driver speed and the PID error are refreshed on alternate iterations
+    rig.run_ms(1)
+    assert rig.xfer(bytes([P.GETENCODERRPM]), 5) == struct.pack("<f", -3.25) + bytes([OFF]), "every 2 ms"
+    rig.run_ms(2)  # the driver speed and the PID error: every fourth iteration each
     for name, value in (("ANGLEMOVED", 12.5), ("GETENCODERRPM", -3.25), ("GETDRIVERRPM", 7.0),
                         ("GETPIDERROR", 42.0)):
         reply = rig.xfer(bytes([P.register(name).addr]), 5)

@@ -121,3 +121,22 @@ def test_the_host_package_reaches_the_joint_unmodified(joint_bus: JointBusClient
     assert identity.spec_matches and identity.joint_id == 1
     assert not joint.is_enabled() and not joint.is_homed()
     assert bus.transactions[-1].scl_held_us > 0, "each transaction carries the chip's timing"
+
+
+def test_back_to_back_transactions_each_reach_the_joint_whole(joint_bus: JointBusClient) -> None:
+    """The original host's cycle with no gap between transactions at 400 kHz: a STOP the rp2
+    driver services after the next START and first byte makes it end that write early; the
+    joint still judges every frame whole (LASTERROR names the register and reason the simulator's
+    does, not a fragment)."""
+    setrpm = P.register("SETRPM")
+    cycle = [(bytes([P.ANGLEMOVED]), 5), (bytes([P.GETENCODERRPM]), 5),
+             (bytes([P.SETRPM]) + setrpm.encode(10.0), 1)]
+    last_error = bytes([P.LASTERROR]), 5
+    before = joint_bus.transfer(ADDRESS, *last_error, gap_us=2000).data
+    done = joint_bus.schedule([(ADDRESS, w, r) for w, r in cycle], repeat=10, period_us=10_000)
+    rig = disabled_reference()
+    assert [t.data for t in done] == [bytes(rig.xfer(w, r)) for _ in range(10) for w, r in cycle]
+    after = joint_bus.transfer(ADDRESS, *last_error, gap_us=2000).data
+    assert after[:2] == bytes(rig.xfer(*last_error))[:2] == bytes([P.REJECT_DISABLED, P.SETRPM])
+    rejects = int.from_bytes(after[2:4], "little") - int.from_bytes(before[2:4], "little")
+    assert rejects == 10, "one reject per SETRPM frame, none for fragments"

@@ -1,6 +1,6 @@
 """PicoStepper: the MotorHAL on a Raspberry Pi Pico, a TMC2209 and an AS5600.
 
-The TMC5130 of the uStepper generated its own ramp; here joint.ramp.Ramp plays that part in the
+The TMC5130 of the uStepper generated its own ramp; here joint.tickramp.TickRamp plays that part in the
 main loop and the PIO turns it into STEP/DIR pulses (stepgen.py). update() does what the
 library's 1.54 kHz timer interrupt did (ustepper-model.md section 3): sample the encoder, run the
 velocity estimator and, with the closed loop on, re-synchronise the driver position to the encoder
@@ -16,7 +16,7 @@ Differences from the uStepper that the stall and homing tuning must allow for:
 * the encoder's filter lag (config encoder_slow_filter) adds v * lag to the error at speed;
 * driver_rpm() reports the true ramp speed (the library reported 0.596x of it).
 
-Default wiring (DEFAULT_PINS; the joint bus target is I2C0 on GP4 SDA / GP5 SCL):
+Default wiring (motor_config.DEFAULT_PINS; the joint bus target is I2C0 on GP4 SDA / GP5 SCL):
 
     UART1 TX GP8 --1k--+-- TMC2209 PDN_UART      I2C1 SDA GP6 -- AS5600 SDA
     UART1 RX GP9 ------+                          I2C1 SCL GP7 -- AS5600 SCL (pull-ups on the board)
@@ -29,34 +29,14 @@ from ..emitters import micropython
 from ..clock import MonotonicClock
 from ..fixed import LIMIT, muldiv
 from ..hal import MotorHAL
-from ..ramp import TickRamp, POSITIONING, VELOCITY_NEG, VELOCITY_POS
-from ..velocity import FixedVelocityEstimator
+from ..tickramp import TickRamp, POSITIONING, VELOCITY_NEG, VELOCITY_POS, _run as _ramp_run
+from ..tickramp import S_MODE, S_V, S_VMAX, S_X
+from ..velocity import FixedVelocityEstimator, _update as _velocity_update
 from . import tmc2209 as tmc
 from .as5600 import AS5600, COUNTS_PER_REV, decode_status
-from .stepgen import SM_FREQ, MIN_PERIOD, StepGenerator, burst_program
+from .stepgen import SM_FREQ, StepGenerator, burst_program
+from .stepgen import _issue as _steps_issue, _poll as _steps_poll
 
-DEFAULT_PINS = {
-    "uart": 1, "uart_tx": 8, "uart_rx": 9,
-    "encoder_i2c": 1, "encoder_sda": 6, "encoder_scl": 7,
-    "step": 10, "dir": 11, "enable": 12,
-}
-
-DEFAULTS = dict(DEFAULT_PINS)
-DEFAULTS.update({
-    "uart_baud": 115200,
-    "tmc_address": 0,
-    "encoder_freq": 1000000,  # the AS5600 does Fast-mode Plus: its read blocks the loop 2.5x less
-    "encoder_slow_filter": 3,  # 2x: 0.286 ms settling, the least lag
-    "encoder_fast_threshold": 0,
-    "pio_sm": 0,
-    "microsteps": 256,  # one pulse per library ustep; coarser MRES coarsens the PID error
-    "max_step_rate": 1200000,  # pulses/s inside a burst; the average is 90 % of it
-    "rsense_ohm": 0.11,  # common on TMC2209 modules
-    "full_scale_ma": 1500,  # RMS at 100 %: the uStepper gave about 1.5..1.9 A
-    "update_hz": 1000,  # how often the core calls update()
-})
-
-JOINT_BUS = {"bus": 0, "sda": 4, "scl": 5}  # the joint's I2C target (config section "i2c")
 
 # In usteps/s and usteps/s^2 (converted to the ramp's per-tick Q16 units at construction):
 # the TMC5130's largest AMAX/DMAX (0xFFFE at 10 MHz), which the library clamps to and which its
@@ -93,6 +73,11 @@ class PicoStepper(MotorHAL):
         self._tick_us = 1000000 // rate
         self._ramp = TickRamp()
         self._vel = FixedVelocityEstimator(rate)
+        # The 1 kHz path works on the state arrays themselves (ramp, estimator, pulse counters).
+        self._rs = self._ramp.s
+        self._vs = self._vel.s
+        self._ss = steps.s
+        self._sm = steps._sm
         num, den = 3 * rate, 2560
         while den % 2 == 0 and num % 2 == 0:
             num //= 2
@@ -124,6 +109,8 @@ class PicoStepper(MotorHAL):
     @classmethod
     def from_config(cls, motor_cfg, clock=None):
         """Build the real objects from a motor config dict (DEFAULTS fill the gaps)."""
+        from .motor_config import DEFAULTS, validate_motor_config  # boot only: app drops it after
+
         problems = validate_motor_config(motor_cfg)
         if problems:
             raise ValueError("; ".join(problems))
@@ -211,7 +198,9 @@ class PicoStepper(MotorHAL):
 
     @micropython.native
     def update(self):
-        """One control period: allocation-free (integers only), see the module docstring."""
+        """One control period: allocation-free (integers only), see the module docstring. The
+        ramp, the velocity estimator and the pulse bookkeeping are viper functions over their
+        int32 state arrays: a few calls instead of a hundred attribute loads."""
         if not self._ready:
             return
         now = self._ticks()
@@ -224,24 +213,27 @@ class PicoStepper(MotorHAL):
             self._last_us = now
         else:
             self._last_us += ticks * tick_us
-        steps = self._steps
-        steps.poll()
+        ss = self._ss
+        sm = self._sm
+        _steps_poll(ss, sm)
+        rs = self._rs
         enc = self._enc
         if enc.sample():
-            self._vel.update(enc.count)
+            count = enc.count
+            _velocity_update(self._vs, count)
             if self._closed_loop:
-                count = enc.count
                 measured = (count * 25) >> 1 if count >= 0 else -((-count * 25) >> 1)
-                error = steps.position - measured
+                error = ss[0] - measured  # driver position
                 self._error = error
                 if error >= self._threshold or -error >= self._threshold:
-                    self._relabel(-error)
-        ramp = self._ramp
-        for _ in range(ticks):
-            ramp.tick()
-        if self._stopping and ramp.v == 0:
+                    # _relabel(-error), inlined for the 1 kHz path
+                    ss[0] -= error
+                    ss[1] -= error
+                    rs[S_X] -= error
+        _ramp_run(rs, ticks)
+        if self._stopping and rs[S_V] == 0:
             self._finish_stop()
-        steps.issue(ramp.x, ticks * tick_us)
+        _steps_issue(ss, sm, rs[S_X], ticks * tick_us)
 
     def _relabel(self, delta):
         """Shift the driver frame by `delta` usteps without moving the motor (an XACTUAL write):
@@ -294,14 +286,14 @@ class PicoStepper(MotorHAL):
 
     def set_rpm(self, rpm):
         """Velocity mode: VMAX = |rpm| (Q16, fixed.RPM_Q), direction from the sign (0 ramps down)."""
-        ramp = self._ramp
         if self._stopping:  # a new command ends a stop (the library's stop() blocks instead)
             self._stopping = False
-            ramp.amax = self._amax
-            ramp.dmax = self._dmax
+            self._ramp.amax = self._amax
+            self._ramp.dmax = self._dmax
         v = muldiv(rpm if rpm >= 0 else -rpm, 2560, 3 * self._rate)  # 51200 / 60 usteps/s per rpm
-        ramp.vmax = v if v < self._vmax_limit else self._vmax_limit
-        ramp.mode = VELOCITY_POS if rpm > 0 else VELOCITY_NEG
+        rs = self._rs  # the ramp's words: a host streams SETRPM at its cycle rate
+        rs[S_VMAX] = v if v < self._vmax_limit else self._vmax_limit
+        rs[S_MODE] = VELOCITY_POS if rpm > 0 else VELOCITY_NEG
 
     def move_steps(self, usteps):
         """Positioning to the ramp position + usteps with the stored velocity and accelerations."""
@@ -396,12 +388,12 @@ class PicoStepper(MotorHAL):
 
     def encoder_rpm(self):
         """rpm in Q16: counts/s (Q8) * 60 / 4096 * 256 (|counts/s| < 280 000 keeps it small)."""
-        return (self._vel.value * 15) >> 2
+        return (self._vs[6] * 15) >> 2  # the estimator's value
 
     def driver_rpm(self):
         """Speed of the ramp generator, rpm in Q16 (the ramp's Q16 usteps/tick * rate * 60 / 51200),
         rounded toward minus infinity; muldiv inlined (it runs at 1 kHz)."""
-        v = self._ramp.v
+        v = self._rs[S_V]
         den = self._rpm_den
         q = v // den
         return q * self._rpm_num + (v - q * den) * self._rpm_num // den
@@ -428,98 +420,3 @@ class PicoStepper(MotorHAL):
                   "encoder_errors": self._enc.errors, "uart_faults": self.faults, "uart_fault": self.fault}
         report.update(tmc.decode_drv_status(self._drv.read(tmc.DRV_STATUS)))
         return report
-
-
-# ---- configuration ----
-
-_INT = 0
-_NUM = 1
-_SCHEMA = (
-    ("uart", _INT, 0, 1), ("uart_tx", _INT, 0, 47), ("uart_rx", _INT, 0, 47),
-    ("uart_baud", _INT, 9600, 500000), ("tmc_address", _INT, 0, 3),
-    ("encoder_i2c", _INT, 0, 1), ("encoder_sda", _INT, 0, 47), ("encoder_scl", _INT, 0, 47),
-    ("encoder_freq", _INT, 10000, 1000000), ("encoder_slow_filter", _INT, 0, 3),
-    ("encoder_fast_threshold", _INT, 0, 7),
-    ("step", _INT, 0, 47), ("dir", _INT, 0, 47), ("enable", _INT, 0, 47), ("pio_sm", _INT, 0, 11),
-    ("microsteps", _INT, 1, 256), ("max_step_rate", _NUM, 1000, SM_FREQ // MIN_PERIOD),
-    ("rsense_ohm", _NUM, 0.05, 1.0), ("full_scale_ma", _NUM, 50, 2000), ("update_hz", _NUM, 100, 5000),
-)
-_PINS = ("uart_tx", "uart_rx", "encoder_sda", "encoder_scl", "step", "dir", "enable")
-
-
-def _uart_of(pin):
-    """UART instance on a GPIO: the RP2040 table (TX on pin % 4 == 0, RX on 1, in blocks
-    0,1,1,0,0,1,1,0 of four pins), assumed to continue on the RP2350B's GPIO 30..47."""
-    return ((pin // 4 + 1) // 2) % 2
-
-
-def is_i2c_pin(pin, bus, scl):
-    """rp2: GPIO n belongs to I2C (n // 2) % 2, as SDA when n is even, SCL when odd."""
-    return pin % 2 == (1 if scl else 0) and (pin // 2) % 2 == bus
-
-
-def _pins_for(ok):
-    return ", ".join("GP%d" % p for p in range(30) if ok(p))
-
-
-def validate_motor_config(cfg, joint_bus=None):
-    """Readable problems with a "pico" motor config dict (empty list: valid).
-
-    `joint_bus` is the joint's I2C target {"bus", "sda", "scl"} (defaults to JOINT_BUS): the
-    encoder must use the other I2C block and none of its pins.
-    """
-    if type(cfg) is not dict:
-        return ["the motor config must be an object"]
-    errors = []
-    known = [spec[0] for spec in _SCHEMA]
-    for key in cfg:
-        if key != "backend" and key not in known:
-            errors.append("unknown key %s (known: %s)" % (key, ", ".join(known)))
-    c = dict(DEFAULTS)
-    bad = []
-    for key, kind, lo, hi in _SCHEMA:
-        if key not in cfg:
-            continue
-        value = cfg[key]
-        kinds = (int,) if kind == _INT else (int, float)
-        if type(value) is bool or type(value) not in kinds:
-            what = "an integer" if kind == _INT else "a number"
-            errors.append("%s must be %s, got %r" % (key, what, value))
-            bad.append(key)
-        elif not lo <= value <= hi:
-            errors.append("%s = %r is out of range %s..%s" % (key, value, lo, hi))
-            bad.append(key)
-        else:
-            c[key] = value
-    if "microsteps" not in bad and 256 % c["microsteps"]:
-        errors.append("microsteps = %r must be a power of two in 1..256" % c["microsteps"])
-    uart = c["uart"]
-    if c["uart_tx"] % 4 != 0 or _uart_of(c["uart_tx"]) != uart:
-        errors.append("uart_tx = %d is not a TX pin of UART%d (use %s)"
-                      % (c["uart_tx"], uart, _pins_for(lambda p: p % 4 == 0 and _uart_of(p) == uart)))
-    if c["uart_rx"] % 4 != 1 or _uart_of(c["uart_rx"]) != uart:
-        errors.append("uart_rx = %d is not an RX pin of UART%d (use %s)"
-                      % (c["uart_rx"], uart, _pins_for(lambda p: p % 4 == 1 and _uart_of(p) == uart)))
-    bus = c["encoder_i2c"]
-    for key, scl, role in (("encoder_sda", False, "SDA"), ("encoder_scl", True, "SCL")):
-        pin = c[key]
-        if not is_i2c_pin(pin, bus, scl):
-            errors.append("%s = %d is not an %s pin of I2C%d (use %s)" % (
-                key, pin, role, bus, _pins_for(lambda p: is_i2c_pin(p, bus, scl))))
-    joint = JOINT_BUS if joint_bus is None else joint_bus
-    if bus == joint["bus"]:
-        errors.append("encoder_i2c = %d is the joint bus (I2C%d is the I2C target); use the other one"
-                      % (bus, joint["bus"]))
-    owners = {joint["sda"]: "the joint bus SDA", joint["scl"]: "the joint bus SCL"}
-    for key in _PINS:
-        pin = c[key]
-        if pin in owners:
-            errors.append("%s = %d is already used by %s" % (key, pin, owners[pin]))
-        else:
-            owners[pin] = key
-    if "rsense_ohm" not in bad and "full_scale_ma" not in bad:
-        try:
-            tmc.current_scale(c["rsense_ohm"], c["full_scale_ma"] / 1000.0)
-        except ValueError as exc:
-            errors.append("full_scale_ma = %r cannot be set: %s" % (c["full_scale_ma"], exc))
-    return errors

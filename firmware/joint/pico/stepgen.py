@@ -29,7 +29,9 @@ ustep, so 1.2 MHz gives 1.08 M usteps/s = 1266 rpm (the joints' fastest setting 
 Speed changes take effect at the next tick: one loop period of latency.
 """
 
-from ..emitters import micropython
+from array import array
+
+from ..emitters import micropython, ptr32
 
 try:
     from micropython import const
@@ -43,8 +45,8 @@ PERIOD_OVERHEAD = const(5)  # cycles per pulse beyond Y: high (3), last low-loop
 MIN_DELAY = const(1)  # Y >= 1 keeps STEP low >= 3 cycles
 MAX_DELAY = const(0x3FFF)
 MAX_PULSES = const(0x8000)
-MIN_PERIOD = MIN_DELAY + PERIOD_OVERHEAD
-MAX_PERIOD = MAX_DELAY + PERIOD_OVERHEAD
+MIN_PERIOD = const(6)  # MIN_DELAY + PERIOD_OVERHEAD
+MAX_PERIOD = const(0x3FFF + 5)  # MAX_DELAY + PERIOD_OVERHEAD
 BURST_FILL = 0.9  # issue() uses 9 // 10 on the integer path
 MAX_IN_FLIGHT = const(4)  # bursts queued or unacknowledged; 4 keeps put() and the PIO push non-blocking
 
@@ -127,24 +129,36 @@ def burst_program():
     return burst
 
 
+def _field(i):
+    def get(self):
+        return self.s[i]
+
+    def put(self, value):
+        self.s[i] = value
+    return property(get, put)
+
+
 class StepGenerator:
     """Feeds burst words to a state-machine-like object (put, get, rx_fifo) and tracks positions.
 
     position:  usteps of acknowledged bursts (the pulses that reached the driver);
     commanded: usteps handed to the PIO, position plus the bursts in flight.
+    The counters live in the int32 array `s` ([position, commanded, in_flight, field, upp,
+    cycles per 2 us, pulses per ms]) that the viper poll and issue work on.
     """
+
+    position = _field(0)
+    commanded = _field(1)
+    in_flight = _field(2)
+    field = _field(3)  # usteps of acknowledged pulses, never relabelled, wrapping at 2**30
 
     def __init__(self, sm, microsteps=256, max_rate=1200000, sm_freq=SM_FREQ):
         self._sm = sm
         self.upp = usteps_per_pulse(microsteps)
         self._sm_freq = sm_freq
         self._max_rate = max_rate
-        self._cycles_per_2us = sm_freq // 500000
-        self._rate_per_ms = int(max_rate) // 1000  # pulses per ms: config max_step_rate >= 1000
-        self.position = 0
-        self.commanded = 0
-        self.in_flight = 0
-        self.field = 0  # usteps of acknowledged pulses, never relabelled, wrapping at 2**30
+        # max_step_rate >= 1000 (config): at least a pulse per ms
+        self.s = array("i", (0, 0, 0, 0, self.upp, sm_freq // 500000, int(max_rate) // 1000))
 
     def max_usteps_per_s(self):
         """Highest average speed: BURST_FILL of the time at the maximum pulse rate."""
@@ -153,58 +167,78 @@ class StepGenerator:
             rate = self._max_rate
         return BURST_FILL * rate * self.upp
 
-    @micropython.native
     def poll(self):
         """Account for bursts the PIO has finished."""
-        sm = self._sm
-        while sm.rx_fifo():
-            word = sm.get()
-            n = ((word >> 1) & 0x7FFF) + 1  # burst_pulses(), inlined for the 1 kHz path
-            moved = (n if word & 1 else -n) * self.upp
-            self.position += moved
-            self.field = (self.field + moved) & 0x3FFFFFFF
-            self.in_flight -= 1
+        _poll(self.s, self._sm)
 
-    @micropython.native
     def issue(self, target, dt_us):
         """Queue one burst toward `target` (int usteps, the ramp position) spread over BURST_FILL
         of `dt_us` microseconds; returns the pulses queued (0 when there is nothing whole to send
         or the FIFO is busy). Integers only: it runs at 1 kHz on the board."""
-        if self.in_flight >= MAX_IN_FLIGHT:
-            return 0
-        window = dt_us * 9 // 10  # BURST_FILL
-        max_pulses = window * self._cycles_per_2us // (2 * MIN_PERIOD)
-        limit = window * self._rate_per_ms // 1000
-        if max_pulses > limit:
-            max_pulses = limit
-        if max_pulses > MAX_PULSES:
-            max_pulses = MAX_PULSES
-        owed = target - self.commanded
-        upp = self.upp
-        pulses = owed // upp if owed >= 0 else -(-owed // upp)
-        if pulses > max_pulses:
-            pulses = max_pulses
-        elif pulses < -max_pulses:
-            pulses = -max_pulses
-        if pulses:
-            # period_cycles() and burst_word(), inlined for the 1 kHz path.
-            n = pulses if pulses > 0 else -pulses
-            per_2us = self._cycles_per_2us
-            if n * MAX_PERIOD * 2 <= per_2us * window:
-                delay = MAX_DELAY
-            else:
-                delay = per_2us * window // (2 * n) - PERIOD_OVERHEAD
-                if delay < MIN_DELAY:
-                    delay = MIN_DELAY
-            self._sm.put((delay << 16) | ((n - 1) << 1) | (1 if pulses > 0 else 0))
-            self.commanded += pulses * upp
-            self.in_flight += 1
-        return pulses
+        return _issue(self.s, self._sm, target, dt_us)
 
     def shift(self, delta):
         """Relabel both positions by `delta` usteps (closed-loop re-sync, set home)."""
-        self.position += delta
-        self.commanded += delta
+        s = self.s
+        s[0] += delta
+        s[1] += delta
 
     def idle(self):
-        return self.in_flight == 0
+        return self.s[2] == 0
+
+
+# The viper functions read the state's words sign-extended, as joint.ramp._run explains.
+@micropython.viper
+def _poll(s: ptr32, sm):
+    m = 1
+    m <<= 31
+    k = m + m - 1
+    upp = ((s[4] + m) & k) - m
+    wrap = 1
+    wrap <<= 30
+    wrap -= 1  # the field counter's mask (not a literal: 2**30 - 1 is no small int on 30-bit ports)
+    while sm.rx_fifo():
+        word = int(sm.get())
+        n = ((word >> 1) & 0x7FFF) + 1  # burst_pulses(), inlined
+        moved = (n if word & 1 else 0 - n) * upp
+        s[0] = ((s[0] + m) & k) - m + moved
+        s[3] = (((s[3] + m) & k) - m + moved) & wrap
+        s[2] = ((s[2] + m) & k) - m - 1
+
+
+@micropython.viper
+def _issue(s: ptr32, sm, target: int, dt_us: int) -> int:
+    m = 1
+    m <<= 31
+    k = m + m - 1
+    if ((s[2] + m) & k) - m >= MAX_IN_FLIGHT:
+        return 0
+    window = dt_us * 9 // 10  # BURST_FILL
+    per_2us = ((s[5] + m) & k) - m
+    max_pulses = window * per_2us // (2 * MIN_PERIOD)
+    limit = window * (((s[6] + m) & k) - m) // 1000
+    if max_pulses > limit:
+        max_pulses = limit
+    if max_pulses > MAX_PULSES:
+        max_pulses = MAX_PULSES
+    commanded = ((s[1] + m) & k) - m
+    owed = target - commanded
+    upp = ((s[4] + m) & k) - m
+    pulses = owed // upp if owed >= 0 else 0 - ((0 - owed) // upp)
+    if pulses > max_pulses:
+        pulses = max_pulses
+    elif pulses < 0 - max_pulses:
+        pulses = 0 - max_pulses
+    if pulses != 0:
+        # period_cycles() and burst_word(), inlined.
+        n = pulses if pulses > 0 else 0 - pulses
+        if n * MAX_PERIOD * 2 <= per_2us * window:
+            delay = MAX_DELAY
+        else:
+            delay = per_2us * window // (2 * n) - PERIOD_OVERHEAD
+            if delay < MIN_DELAY:
+                delay = MIN_DELAY
+        sm.put((delay << 16) | ((n - 1) << 1) | (1 if pulses > 0 else 0))
+        s[1] = commanded + pulses * upp
+        s[2] = ((s[2] + m) & k) - m + 1
+    return pulses
