@@ -29,7 +29,7 @@ from chip.i2c import joint_bus_plugin  # noqa: E402
 from chip_bus import host_cycle  # noqa: E402
 
 JOINT = "J1"
-LOOP_MS = 5000  # the measured main loop, emulated milliseconds
+LOOP_MS = 20_000  # the measured main loop, emulated milliseconds (the issue: >= 20,000 iterations)
 # TMC2209, AS5600, rotor on its pins; the emulated I2C controller on its I2C0 (the joint bus)
 JOINT_PLUGINS: list[dict[str, Any]] = [JOINT_DEVICES_PLUGIN, joint_bus_plugin(khz=400)]
 BEFORE_LOOP: list[Callable[[EmulatedPico], None]] = [host_cycle]  # the host cycling at 100 Hz

@@ -97,7 +97,7 @@ def enable(bus: JointBusClient) -> bool:
     return not flags & P.FLAG_NOTENABLED
 
 
-def host_cycle(pico: EmulatedPico, seconds: float = 30.0) -> None:
+def host_cycle(pico: EmulatedPico, seconds: float = 60.0) -> None:
     """The original host cycling at 100 Hz at 400 kHz in the background (for the main-loop run):
     the 3-transaction cycle; NAKed while the joint is not on the bus."""
     cycle = [(ADDRESS, *legacy_transaction(n)) for n in CYCLE_NAMES]

@@ -2,9 +2,9 @@
 
     make bench-chip | python bench/chip_costs.py          # or: python bench/chip_costs.py FILE
 
-Reads `name value` lines (chip.scl_held_us.<REGISTER>, chip.loop_hz, chip.service_us_max,
-chip.gc_every) and rewrites firmware/joint/sim/chip_costs.json atomically; figures it does not find
-keep their current values. Format: /work/wt/_notes/chip_costs.md and the README.
+Reads `name value` lines (chip.scl_held_us.<REGISTER> and .v2, chip.loop_hz, chip.loop_seconds,
+chip.gc_collections, chip.gc_pause_ms_max) and rewrites firmware/joint/sim/chip_costs.json atomically; figures it does not find
+keep their current values. Format: firmware/joint/sim/chip.py and the README ("The simulated arm").
 """
 
 from __future__ import annotations
@@ -17,6 +17,10 @@ import sys
 import tempfile
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
+sys.path[:0] = [str(ROOT / "firmware")]
+
+from joint import protocol as P  # noqa: E402
+
 TABLE = ROOT / "firmware" / "joint" / "sim" / "chip_costs.json"
 
 
@@ -35,15 +39,22 @@ def parse(lines: list[str]) -> dict[str, float]:
 def refresh(table: dict, figures: dict[str, float], source: str) -> dict:
     held = {name.split(".", 2)[2]: value for name, value in figures.items()
             if name.startswith("chip.scl_held_us.")}
+    mem = held.pop("v2", None)
+    if mem is not None:
+        table["scl_held_us_mem"] = mem  # the v2 memory map, served in C
     if held:
         table["scl_held_us"] = held
-        table["scl_held_us_default"] = {"read": max(held.values()), "command": max(held.values())}
+        commands = [v for name, v in held.items() if P.register(name).writable]
+        reads = [v for name, v in held.items() if not P.register(name).writable]
+        table["scl_held_us_default"] = {"read": max(reads or held.values()),
+                                        "command": max(commands or held.values())}
     if "chip.loop_hz" in figures:
         table["loop_hz"] = figures["chip.loop_hz"]
-    if "chip.service_us_max" in figures and "chip.loop_hz" in figures:
-        table["gc_pause_us"] = max(0.0, figures["chip.service_us_max"] - 1e6 / figures["chip.loop_hz"])
-    if "chip.gc_every" in figures:
-        table["gc_every"] = int(figures["chip.gc_every"])
+    if "chip.gc_collections" in figures:
+        iterations = figures.get("chip.loop_hz", 0.0) * figures.get("chip.loop_seconds", 0.0)
+        collections = figures["chip.gc_collections"]
+        table["gc_every"] = round(iterations / collections) if collections else 0
+        table["gc_pause_us"] = figures.get("chip.gc_pause_ms_max", 0.0) * 1000.0
     table["source"] = source
     return table
 
