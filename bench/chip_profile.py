@@ -28,7 +28,6 @@ TARGETS = [
     ("joint.core", "JointController", "_check_tracking", 0),
     ("joint.core", "JointController", "_check_deadman", 0),
     ("joint.core", "JointController", "_host_angle", 0),
-    ("joint.core", "JointController", "_store_f32", 3),
     ("joint.core", "JointController", "_encoder_usteps", 0),
     ("joint.core", "JointController", "_motion_active", 0),
     ("joint.pico.motor", "PicoStepper", "update", 0),
@@ -168,6 +167,7 @@ PARTS = '''
 import gc, time, machine
 from joint import app, protocol as P
 from joint.debug import DebugConsole, UsbStdio
+from joint.fixed import store_q
 core, cfg, log = app.build(machine)
 while not core.ready:
     core.service(); time.sleep_ms(1)
@@ -185,9 +185,10 @@ d = time.ticks_diff
 hal = core.hal
 names = ("service", "hal.update", "apply/task/pos", "stall+track", "deadman", "angle_cache",
          "switch.service", "console.poll", "steps.poll", "enc.sample", "vel.update", "ramp.tick",
-         "steps.issue", "host_angle", "encoder_rpm", "store_f32")
+         "steps.issue", "host_angle", "encoder_rpm", "store_q")
 acc = [0] * len(names)
 N = 1000
+scratch = bytearray(4)
 gc.collect()
 a0 = gc.mem_alloc()
 for i in range(N):
@@ -203,7 +204,7 @@ for i in range(N):
     t2 = t()
     core._check_stall(); core._check_tracking(); t3 = t()
     core._check_deadman(); t4 = t()
-    core._store_f32(core._cache[P.ANGLEMOVED], hal.angle_moved() + core.zero_offset, 12); t5 = t()
+    store_q(core._cache[P.ANGLEMOVED], hal.angle_moved() + core.zero_offset, 12); t5 = t()
     switch.service(); t6 = t()
     console.poll(); t7 = t()
     acc[1] += d(t1, t0); acc[2] += d(t2, t1); acc[3] += d(t3, t2); acc[4] += d(t4, t3)
@@ -212,7 +213,7 @@ for i in range(N):
     s = hal._steps; e = hal._enc; v = hal._vel; r = hal._ramp
     t0 = t(); s.poll(); t1 = t(); e.sample(); t2 = t(); v.update(e.count); t3 = t(); r.tick(); t4 = t()
     s.issue(r.x, 1000); t5 = t(); core._host_angle(); t6 = t(); hal.encoder_rpm(); t7 = t()
-    core._store_f32(core._f32_scratch, 123456 + i, 12); t8 = t()
+    store_q(scratch, 123456 + i, 12); t8 = t()
     acc[8] += d(t1, t0); acc[9] += d(t2, t1); acc[10] += d(t3, t2); acc[11] += d(t4, t3)
     acc[12] += d(t5, t4); acc[13] += d(t6, t5); acc[14] += d(t7, t6); acc[15] += d(t8, t7)
 for k in range(len(names)):

@@ -93,7 +93,6 @@ class JointController(IrqPath, MainLoop, Handlers, Tasks, Supervisor):
         self._cache[PING][0] = ACK
         self._cache_values = [0, 0, 0, 0]  # what the float caches hold (HAL units)
         self._cache_turn = 0  # counts iterations: which of the slower caches is refreshed next
-        self._f32_scratch = bytearray(4)
         struct.pack_into("<BBBBBI", self._cache[IDENTITY], 0, PROTOCOL_VERSION, FIRMWARE_VERSION[0],
                          FIRMWARE_VERSION[1], FIRMWARE_VERSION[2], cfg.joint_id, SPEC_HASH)
         # IRQ-side state: the reply the next read gets, the command queue, counters.

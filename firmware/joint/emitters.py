@@ -2,7 +2,8 @@
 handles the decorators by their names, so modules write `@micropython.native` after
 `from .emitters import micropython`; under CPython the decorators do nothing and the same files run
 as plain Python. Viper code takes `ptr8` and `ptr32` from here: on MicroPython the viper compiler turns
-`ptr8(buf)` into a raw byte pointer itself (`ptr32`: 32-bit words); under CPython it is the buffer, indexed the same way."""
+`ptr8(buf)` into a raw byte pointer itself (`ptr32`: 32-bit words); under CPython it is the buffer, indexed the same way (bytes
+through a memoryview of their words)."""
 
 try:
     import micropython
@@ -22,4 +23,5 @@ def ptr8(buf):
 
 
 def ptr32(buf):
-    return buf
+    # An int32 array is indexed by word already; bytes are seen as native-order words.
+    return buf if hasattr(buf, "typecode") else memoryview(buf).cast("I")

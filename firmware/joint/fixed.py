@@ -2,7 +2,7 @@
 
 A value in "Qn" is the integer round(x * 2**n). Every result and every intermediate here stays a
 small int (|v| <= 2**30 - 1 on 32-bit ports), so nothing allocates. The legacy wire carries IEEE
-float32; `f32_to_q` and `pack_q` convert on its bits, so the bytes are exactly those of
+float32; `f32_to_q` and `store_q` convert on its bits, so the bytes are exactly those of
 struct.pack("<f", n / 2**q).
 
     ANGLE_Q   motor degrees          (Q12: 1/4096 degree, up to +-262 143 degrees)
@@ -12,7 +12,7 @@ struct.pack("<f", n / 2**q).
 
 import struct
 
-from .emitters import micropython, ptr8
+from .emitters import micropython, ptr32
 
 try:
     from micropython import const
@@ -65,20 +65,19 @@ def f32_to_q(buf, off, q):
 
 
 @micropython.viper
-def pack_q(buf, off: int, n: int, q: int):
-    """Write float32(n / 2**q) little-endian at buf[off:off + 4] for |n| <= LIMIT, 0 <= q <= 30:
-    exactly struct.pack("<f", n / 2**q) (rounded to nearest, ties to even, beyond 2**24), in
-    machine integers: float32(m * 2**(e - 150)), m the 24-bit mantissa, e the biased exponent."""
-    p = ptr8(buf)
+def store_q(buf, n: int, q: int):
+    """Write float32(n / 2**q) little-endian into the 4 bytes of `buf` for |n| <= LIMIT,
+    0 <= q <= 30: exactly struct.pack("<f", n / 2**q) (rounded to nearest, ties to even, beyond
+    2**24), in machine integers: float32(m * 2**(e - 150)), m the 24-bit mantissa, e the biased
+    exponent. One aligned 32-bit store (a reply cache starts its wire buffer, a heap block of its own): an
+    interrupt sees the old value or the new one, never a mix, so no critical section is needed."""
+    p = ptr32(buf)
     if n == 0:
-        p[off] = 0
-        p[off + 1] = 0
-        p[off + 2] = 0
-        p[off + 3] = 0
+        p[0] = 0
         return
     sign = 0
     if n < 0:
-        sign = 0x80
+        sign = 1
         n = 0 - n
     e = 150 - q
     m = n
@@ -102,10 +101,7 @@ def pack_q(buf, off: int, n: int, q: int):
         while m < 0x800000:
             m <<= 1
             e -= 1
-    p[off] = m & 0xFF
-    p[off + 1] = (m >> 8) & 0xFF
-    p[off + 2] = ((m >> 16) & 0x7F) | ((e & 1) << 7)
-    p[off + 3] = sign | (e >> 1)
+    p[0] = (m & 0x7FFFFF) | (e << 23) | (sign << 31)
 
 
 def to_q(value, q):

@@ -3,12 +3,12 @@
 `service()` runs once per main-loop iteration: it drains the IRQ's command queue in arrival order
 into the motor HAL (`handlers.py`), steps the running blocking task (`tasks.py`), runs the
 supervision (`supervise.py`) and packs the reply caches the IRQ serves. Its writes to state the IRQ
-reads are wrapped in `critical` sections.
+reads are wrapped in `critical` sections, except the float caches: one 32-bit store each (store_q).
 """
 
 from .emitters import micropython
 
-from .fixed import ANGLE_Q, RPM_Q, pack_q
+from .fixed import ANGLE_Q, RPM_Q, store_q
 from .irq import COUNTER_MASK, MOTION_BLOCKED, QUEUE_SLOTS, SLOT, SLOT_FLAGS, SLOT_HALTS, SLOT_STOPS
 from .protocol import (
     ANGLEMOVED, BY_ADDR, FLAG_BUSY, FLAG_NOTENABLED, GETDRIVERRPM, GETENCODERRPM, GETPIDERROR,
@@ -64,7 +64,7 @@ class MainLoop:
                 value = hal.angle_moved() + self.zero_offset  # _host_angle(), inlined
                 if value != last[0]:
                     last[0] = value
-                    self._store_f32(self._cache[ANGLEMOVED], value, ANGLE_Q)
+                    store_q(self._cache[ANGLEMOVED], value, ANGLE_Q)
                 turn = (self._cache_turn + 1) & 3
                 self._cache_turn = turn
                 if turn & 1 == 0:
@@ -83,7 +83,7 @@ class MainLoop:
                     q = 0
                 if value != last[turn]:
                     last[turn] = value
-                    self._store_f32(self._cache[addr], value, q)
+                    store_q(self._cache[addr], value, q)
             except Exception as exc:
                 self._motor_fault(exc)
         if self.rejects != self._logged_rejects:
@@ -122,18 +122,6 @@ class MainLoop:
     def _clear_flags(self, mask):
         state = self._irq_off()
         self.flags &= ~mask
-        self._irq_on(state)
-
-    @micropython.native
-    def _store_f32(self, dest, value, q):
-        """float32(value / 2**q) into a reply cache: packed aside, copied in one critical section."""
-        scratch = self._f32_scratch
-        pack_q(scratch, 0, value, q)
-        state = self._irq_off()
-        dest[0] = scratch[0]
-        dest[1] = scratch[1]
-        dest[2] = scratch[2]
-        dest[3] = scratch[3]
         self._irq_on(state)
 
     def _apply_next(self):

@@ -4,7 +4,7 @@ A task holds BUSY while it runs; the main loop steps it when its wait is over (e
 how many milliseconds to wait) or a STOP cancelled it.
 """
 
-from .fixed import ANGLE_Q, RPM_Q, STEPS_Q, muldiv, to_q
+from .fixed import ANGLE_Q, RPM_Q, STEPS_Q, muldiv, store_q, to_q
 from .homing import HOMED, OUTCOMES, RUNNING
 from .protocol import FLAG_BUSY, FLAG_NOTHOMED, FLAG_STALL, FLAGS_AT_BOOT, HOMINGTRAVEL
 from .tracking import wrapped_diff
@@ -185,7 +185,7 @@ class Tasks:
             # the deepest point the encoder reached while pushing, not where the rotor came to rest.
             rest = self._encoder_usteps()
             travel = _usteps_to_angle(wrapped_diff(monitor.deepest, monitor.start_encoder))
-            self._store_f32(self._cache[HOMINGTRAVEL], travel, ANGLE_Q)
+            store_q(self._cache[HOMINGTRAVEL], travel, ANGLE_Q)
             hal.set_home()
             self.zero_offset = _usteps_to_angle(wrapped_diff(rest, monitor.deepest))
             self._clear_flags(FLAG_NOTHOMED | FLAG_STALL)

@@ -6,7 +6,7 @@ joint.velocity.VelocityEstimator) and against struct's float32 encoding, on both
 
 import struct
 
-from joint.fixed import LIMIT, f32_to_q, i32, muldiv, pack_q, to_q
+from joint.fixed import LIMIT, f32_to_q, i32, muldiv, store_q, to_q
 from joint.ramp import HOLD, POSITIONING, VELOCITY_NEG, VELOCITY_POS, Ramp
 from joint.tickramp import TickRamp
 from joint.velocity import FixedVelocityEstimator, VelocityEstimator
@@ -44,7 +44,7 @@ def test_fixed_point_packs_the_same_float32_bytes_as_struct():
             n = rng.below(1 << bits) - (1 << (bits - 1))
         for q in (0, 4, 12, 16):
             buf = bytearray(4)
-            pack_q(buf, 0, n, q)
+            store_q(buf, n, q)
             assert bytes(buf) == struct.pack("<f", n / (1 << q)), (n, q)
 
 
