@@ -25,3 +25,14 @@ def ptr8(buf):
 def ptr32(buf):
     # An int32 array is indexed by word already; bytes are seen as native-order words.
     return buf if hasattr(buf, "typecode") else memoryview(buf).cast("I")
+
+
+def state_word(i):
+    """A property over word i of the instance's int32 state array `s`: viper code works on the
+    array, Python code off the 1 kHz path uses the names."""
+    def get(self):
+        return self.s[i]
+
+    def put(self, value):
+        self.s[i] = value
+    return property(get, put)

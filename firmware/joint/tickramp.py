@@ -6,7 +6,7 @@ constants are defined here and re-exported by joint.ramp.
 
 from array import array
 
-from .emitters import micropython, ptr32
+from .emitters import micropython, ptr32, state_word
 
 try:
     from micropython import const
@@ -31,15 +31,6 @@ S_AMAX = const(6)
 S_DMAX = const(7)
 
 
-def _field(i):
-    def get(self):
-        return self.s[i]
-
-    def put(self, value):
-        self.s[i] = value
-    return property(get, put)
-
-
 class TickRamp:
     """The same ramp generator in integers, advanced one control tick at a time (the chip's).
 
@@ -60,14 +51,14 @@ class TickRamp:
     wrap like the TMC5130's XACTUAL.
     """
 
-    x = _field(S_X)
-    xf = _field(S_XF)
-    v = _field(S_V)
-    mode = _field(S_MODE)
-    xtarget = _field(S_XTARGET)
-    vmax = _field(S_VMAX)
-    amax = _field(S_AMAX)
-    dmax = _field(S_DMAX)
+    x = state_word(S_X)
+    xf = state_word(S_XF)
+    v = state_word(S_V)
+    mode = state_word(S_MODE)
+    xtarget = state_word(S_XTARGET)
+    vmax = state_word(S_VMAX)
+    amax = state_word(S_AMAX)
+    dmax = state_word(S_DMAX)
 
     def __init__(self):
         self.s = array("i", bytes(4 * 8))  # mode POSITIONING (0), everything else 0

@@ -31,7 +31,7 @@ Speed changes take effect at the next tick: one loop period of latency.
 
 from array import array
 
-from ..emitters import micropython, ptr32
+from ..emitters import micropython, ptr32, state_word
 
 try:
     from micropython import const
@@ -129,15 +129,6 @@ def burst_program():
     return burst
 
 
-def _field(i):
-    def get(self):
-        return self.s[i]
-
-    def put(self, value):
-        self.s[i] = value
-    return property(get, put)
-
-
 class StepGenerator:
     """Feeds burst words to a state-machine-like object (put, get, rx_fifo) and tracks positions.
 
@@ -147,10 +138,10 @@ class StepGenerator:
     cycles per 2 us, pulses per ms]) that the viper poll and issue work on.
     """
 
-    position = _field(0)
-    commanded = _field(1)
-    in_flight = _field(2)
-    field = _field(3)  # usteps of acknowledged pulses, never relabelled, wrapping at 2**30
+    position = state_word(0)
+    commanded = state_word(1)
+    in_flight = state_word(2)
+    field = state_word(3)  # usteps of acknowledged pulses, never relabelled, wrapping at 2**30
 
     def __init__(self, sm, microsteps=256, max_rate=1200000, sm_freq=SM_FREQ):
         self._sm = sm
