@@ -88,7 +88,9 @@ class I2CTargetAdapter:
         self._wires = core._wires
         self._ticks_us = core._ticks_us
         self._handler = self._irq
-        self._events = target.irq(self._handler, trigger=TRIGGER, hard=True)  # the irq object
+        # The irq object first: a host already polling at boot fires the handler the moment it is set.
+        self._events = target.irq()
+        target.irq(self._handler, trigger=TRIGGER, hard=True)
 
     def deinit(self):
         self._target.irq(None, trigger=0, hard=True)
