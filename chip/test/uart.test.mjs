@@ -4,9 +4,8 @@
 import assert from 'node:assert/strict';
 import { describe, test } from 'node:test';
 import { RP2040 } from 'rp2040js';
-import { Board, World } from '../src/board.mjs';
 import { installPL011 } from '../src/uart.mjs';
-import { skipNoBinaries, usbText } from './helpers.mjs';
+import { bootToRepl, skipNoBinaries } from './helpers.mjs';
 
 const UART1 = 0x40038000;
 const DR = 0x00, FR = 0x18, IBRD = 0x24, FBRD = 0x28, LCR_H = 0x2c, CR = 0x30, IFLS = 0x34;
@@ -101,14 +100,8 @@ describe('PL011 transmit path, register level', () => {
   });
 });
 
-function bootToRepl(options) {
-  const board = new Board(options);
-  const world = new World();
-  world.add(board);
-  const usb = usbText(board);
-  assert.ok(world.runUntilTrue(() => board.usbConnected, 2e9));
-  board.usbWrite(Buffer.from('\r'));
-  assert.ok(world.runUntilTrue(() => usb.text.includes('>>> '), 1e9));
+function replWithUart(options) {
+  const { board, world, usb } = bootToRepl(options);
   usb.text = '';
   const sent = [];
   board.rp2040.uart[1].onByte = (value) => sent.push(value);
@@ -117,7 +110,7 @@ function bootToRepl(options) {
 
 describe('machine.UART on the emulated Pico', { skip: skipNoBinaries }, () => {
   test('UART(1, 115200).write returns and every byte reaches the TX side in order', () => {
-    const { board, world, usb, sent } = bootToRepl();
+    const { board, world, usb, sent } = replWithUart();
     // 100 bytes: more than the FIFO holds, so the driver's TX interrupt must refill it.
     board.usbWrite(Buffer.from('u=__import__("machine").UART(1,115200);print(u.write(b"x"),'
       + 'u.write(bytes(range(100))));u.flush();print("sent")\r'));
@@ -127,7 +120,7 @@ describe('machine.UART on the emulated Pico', { skip: skipNoBinaries }, () => {
   });
 
   test('with rp2040js\'s own UART the same write never returns', () => {
-    const { board, world, usb } = bootToRepl({ stockUart: true });
+    const { board, world, usb } = replWithUart({ stockUart: true });
     board.usbWrite(Buffer.from('u=__import__("machine").UART(1,115200);u.write(b"x");print("back")\r'));
     assert.equal(world.runUntilTrue(() => usb.text.includes('back\r\n'), 100e6), false);
   });

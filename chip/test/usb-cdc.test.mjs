@@ -4,9 +4,8 @@
 import assert from 'node:assert/strict';
 import { describe, test } from 'node:test';
 import { RP2040, USBCDC } from 'rp2040js';
-import { Board, World } from '../src/board.mjs';
 import { HostCDC } from '../src/usb-cdc.mjs';
-import { skipNoBinaries, usbText } from './helpers.mjs';
+import { bootToRepl, skipNoBinaries } from './helpers.mjs';
 
 const DPRAM = 0x50100000;
 const USB = 0x50110000;
@@ -82,13 +81,7 @@ describe('USB CDC OUT endpoint, register level', () => {
 
 describe('USB CDC on the emulated Pico', { skip: skipNoBinaries }, () => {
   function idleOutTransfers(options) {
-    const board = new Board(options);
-    const world = new World();
-    world.add(board);
-    const usb = usbText(board);
-    assert.ok(world.runUntilTrue(() => board.usbConnected, 2e9));
-    board.usbWrite(Buffer.from('\r'));
-    assert.ok(world.runUntilTrue(() => usb.text.includes('>>> '), 1e9));
+    const { board, world } = bootToRepl(options);
     let completions = 0;
     const finishRead = board.rp2040.usbCtrl.finishRead.bind(board.rp2040.usbCtrl);
     board.rp2040.usbCtrl.finishRead = (endpoint, buffer) => { completions += 1; finishRead(endpoint, buffer); };

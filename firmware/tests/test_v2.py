@@ -4,19 +4,10 @@ two maps, every rejection path, whole-block reads, and an allocation-free main l
 import struct
 
 from joint import protocol as P, protocol_v2 as V
-from joint.sim.i2c_target import FakeI2CTarget
+from joint.sim.i2c_target import FakeI2CTarget, heap_lock, heap_unlock
 from joint.v2 import f32_to_fixed
 
 from v2rig import V2Rig
-
-try:
-    from micropython import heap_lock, heap_unlock
-except ImportError:
-    def heap_lock():
-        pass
-
-    def heap_unlock():
-        pass
 
 
 def _f32(value):
