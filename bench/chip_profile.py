@@ -155,7 +155,7 @@ micropython.qstr_info()
 MODULES = ["joint.emitters", "joint.fixed", "joint.protocol_v2", "joint.protocol", "joint.irq", "joint.filters",
            "joint.stall",
            "joint.tracking", "joint.homing", "joint.supervise", "joint.handlers", "joint.tasks",
-           "joint.loop", "joint.version", "joint.core", "joint.config", "joint.clock", "joint.log",
+           "joint.loop", "joint.version", "joint.regtable", "joint.core", "joint.settings", "joint.config", "joint.clock", "joint.log",
            "joint.hal", "joint.tickramp", "joint.velocity", "joint.pico.tmc2209", "joint.pico.as5600",
            "joint.pico.stepgen", "joint.pico.motor", "joint.i2c_target",
            "joint.v2", "joint.debug", "joint.app"]

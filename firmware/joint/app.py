@@ -5,13 +5,13 @@ hardware at import time. An invalid configuration or a motor backend that fails 
 the joint disabled, reporting why on the serial console, instead of crashing.
 """
 
-from . import config
 from .clock import MonotonicClock
 from .core import JointController
 from .debug import DebugConsole, UsbStdio
 from .i2c_target import I2CTargetAdapter
 from .log import Logger
 from .protocol_v2 import MEM_ADDRSIZE
+from .settings import CONFIG_FILE
 from .v2 import ProtocolSwitch
 
 # RP2040 DW_apb_i2c IC_STATUS of I2C0/I2C1 and its SLV_ACTIVITY bit: set while a transaction
@@ -28,8 +28,9 @@ def build_motor(cfg):
     raise ValueError("motor backend %r cannot run on a board" % cfg.motor.get("backend"))
 
 
-def build(machine, config_path=config.CONFIG_FILE, clock=None, write=None):
+def build(machine, config_path=CONFIG_FILE, clock=None, write=None):
     """Load the configuration and create the controller; returns (core, cfg, log)."""
+    from . import config  # boot only (see _drop_boot_only)
     cfg = config.load(config_path)
     log = Logger(cfg.joint or "joint", write=write)
     motor = None
@@ -44,20 +45,27 @@ def build(machine, config_path=config.CONFIG_FILE, clock=None, write=None):
     return core, cfg, log
 
 
+# Modules used only while building (package attribute paths under `joint`): the configuration's
+# schema and checks, the Pico backend's defaults and validation, the register spec's objects
+# (about 27 KB of heap together). The running joint keeps what it needs of them in settings.py's
+# objects and regtable.RegisterTable.
+BOOT_ONLY = ("config", "pico.motor_config", "protocol")
+
+
 def _drop_boot_only():
-    """On the board, forget the Pico backend's configuration module (defaults and validation, used
-    only while building): out of sys.modules and its package, its code and tables are collected
-    (about 3 KB of heap). Importing it again simply reloads it."""
+    """On the board, forget the boot-only modules: out of sys.modules and their packages, their
+    code and tables are collected. Importing one again simply reloads it."""
     import sys
     if sys.implementation.name != "micropython":
         return
-    from . import pico
-    module = getattr(pico, "motor_config", None)
-    if module is None:
-        return
-    delattr(pico, "motor_config")
-    for name in [name for name, value in sys.modules.items() if value is module]:
-        del sys.modules[name]
+    package = __name__[:-len("app")]  # "joint."
+    for path in BOOT_ONLY:
+        name = package + path
+        if sys.modules.pop(name, None) is None:
+            continue
+        parent, leaf = name[:name.rindex(".")], name[name.rindex(".") + 1:]
+        if hasattr(sys.modules.get(parent), leaf):
+            delattr(sys.modules[parent], leaf)
 
 
 def bus_activity_probe(machine, bus):
@@ -105,7 +113,7 @@ def join_bus(machine, core, cfg, log):
         return None
 
 
-def run(config_path=config.CONFIG_FILE):
+def run(config_path=CONFIG_FILE):
     import machine
     import time
 

@@ -3,12 +3,13 @@
 `load()` never raises: every problem becomes a readable line in `JointConfig.errors` (file, key,
 value, allowed range) and the firmware then starts disabled instead of crashing. Keys left out
 take the original firmware's constants; unknown keys are errors (they are usually typos).
+Used at boot only on the board (the objects it builds are settings.py's).
 """
 
 import json
 
-CONFIG_FILE = "joint_config.json"
-JOINTS = ("J1", "J2", "J3", "J4")
+from .settings import CONFIG_FILE, JOINTS, JointConfig, Section
+
 ADDRESSES = {"J1": 0x11, "J2": 0x12, "J3": 0x13, "J4": 0x14}
 BACKENDS = ("pico", "sim")
 SAFE_ACTIONS = ("hold", "freewheel")
@@ -78,32 +79,6 @@ SCHEMA = (
         ("floor_per_rpm", _NUM, 0.5534, 0.0, 100.0),
     )),
 )
-
-
-class Section:
-    """Attribute view of one validated config section."""
-
-    def __init__(self, values):
-        for key in values:
-            setattr(self, key, values[key])
-
-
-class JointConfig:
-    def __init__(self, source):
-        self.source = source
-        self.errors = []
-        self.joint = None
-        self.address = None
-        self.deadman_ms = 50
-        self.motor = {"backend": "sim"}
-
-    @property
-    def valid(self):
-        return not self.errors
-
-    @property
-    def joint_id(self):
-        return JOINTS.index(self.joint) + 1 if self.joint in JOINTS else 0
 
 
 def _kind_ok(kind, value):

@@ -19,11 +19,12 @@ from .handlers import Handlers
 from .irq import COUNTER_MASK, QUEUE_SLOTS, SLOT, IrqPath
 from .loop import MainLoop
 from .protocol import (
-    ACK, BY_ADDR, CHECKORIENTATION, CLEARSTALL, DISABLECLOSEDLOOP, DISABLESTALLGUARD,
+    ACK, CHECKORIENTATION, CLEARSTALL, DISABLECLOSEDLOOP, DISABLESTALLGUARD,
     ENABLECLOSEDLOOP, ENABLESTALLGUARD, FLAG_BUSY, FLAGS_AT_BOOT, HOME, IDENTITY, MOVEANGLE,
     MOVESTEPS, MOVETOANGLE, PING, PROTOCOL, PROTOCOL_VERSION, SETBRAKEMODE, SETCURRENT, SETHOLDCURRENT,
     SETMAXACCELERATION, SETMAXDECELERATION, SETMAXVELOCITY, SETRPM, SETUP, SPEC_HASH, WATCHDOG,
 )
+from .regtable import RegisterTable
 from .homing import HomingMonitor
 from .stall import StallDetector
 from .supervise import DETECTOR_NAMES, Supervisor
@@ -85,11 +86,11 @@ class JointController(IrqPath, MainLoop, Handlers, Tasks, Supervisor):
         self.stop_deceleration = to_q(cfg.stop_deceleration, STEPS_Q)
         self.trace = None  # main loop: called with the detector after every stall-detection sample
         # Reply caches: bytes of every readable register, packed ahead of the read.
+        self.registers = RegisterTable()  # what the joint keeps of the spec past boot
         self._cache = [None] * 256
-        for addr in range(256):
-            reg = BY_ADDR[addr]
-            if reg is not None and reg.readable:
-                self._cache[addr] = bytearray(reg.rsize)
+        for addr, size in enumerate(self.registers.reply_size):
+            if size:
+                self._cache[addr] = bytearray(size)
         self._cache[PING][0] = ACK
         self._cache_values = [0, 0, 0, 0]  # what the float caches hold (HAL units)
         self._cache_turn = 0  # counts iterations: which of the slower caches is refreshed next

@@ -14,7 +14,6 @@ simulator serves the same console on a pseudo-terminal.
 
 from . import log as L
 from .fixed import ANGLE_Q, RPM_Q
-from .protocol import BY_ADDR, describe_flags
 
 try:
     from micropython import const
@@ -146,7 +145,7 @@ class DebugConsole:
         cfg = core.cfg
         write = self._write
         write("%s at 0x%02x  flags %s  task %s  ready %s  disabled %s" % (
-            cfg.joint, cfg.address or 0, describe_flags(core.flags), core.task_name or "-",
+            cfg.joint, cfg.address or 0, core.registers.describe_flags(core.flags), core.task_name or "-",
             _yes(core.ready), _yes(core.disabled)))
         write("setpoints  position %.3f deg  velocity %.3f rpm  positioning %s" % (
             core.q_set / _ANGLE, core.qd_set / _RPM, _yes(core.positioning)))
@@ -177,9 +176,9 @@ class DebugConsole:
             data = self.core.cached_reply(addr)
             if data is None:
                 continue
-            reg = BY_ADDR[addr]
+            regs = self.core.registers
             raw = " ".join("%02x" % b for b in data)
-            self._write("0x%02x %-14s %-18s %s" % (addr, reg.name, raw, reg.decode(bytes(data))))
+            self._write("0x%02x %-14s %-18s %s" % (addr, regs.name(addr), raw, regs.decode(addr, bytes(data))))
 
     def _trace_cmd(self, args):
         if args == ["on"]:

@@ -14,7 +14,7 @@ read writes the flags into the last byte and hands the whole buffer to the port,
 from .emitters import micropython, ptr8
 
 from .protocol import (
-    BY_ADDR, F32, FLAG_ERROR, FLAG_NOTENABLED, FLAG_STALL, HOMEOFFSET, I32, LASTERROR, MAX_FRAME,
+    F32, FLAG_ERROR, FLAG_NOTENABLED, FLAG_STALL, HOMEOFFSET, I32, LASTERROR, MAX_FRAME,
     HOME, MOVEANGLE, MOVESTEPS, MOVETOANGLE, PING, REJECT_BUSY, REJECT_DISABLED,
     REJECT_HOMING_SENSITIVITY, REJECT_LENGTH, REJECT_NONE, REJECT_NOT_ENABLED, REJECT_QUEUE_FULL,
     REJECT_STALLED, REJECT_UNKNOWN_REGISTER, REJECT_UNSUPPORTED, REJECT_VALUE, SETRPM, STOP, U8, U16,
@@ -114,6 +114,7 @@ def _put16(table, off, value):
 
 def frame_table():
     """The frame table (layout above) for the protocol's registers."""
+    from .protocol import BY_ADDR  # at boot only: the board forgets the spec's objects after boot
     t = bytearray(_FTAB_SIZE)
     for addr in range(256):
         reg = BY_ADDR[addr]

@@ -11,8 +11,7 @@ from .emitters import micropython
 from .fixed import ANGLE_Q, RPM_Q, store_q
 from .irq import COUNTER_MASK, MOTION_BLOCKED, QUEUE_SLOTS, SLOT, SLOT_FLAGS, SLOT_HALTS, SLOT_STOPS
 from .protocol import (
-    ANGLEMOVED, BY_ADDR, FLAG_BUSY, FLAG_NOTENABLED, GETDRIVERRPM, GETENCODERRPM, GETPIDERROR,
-    LASTERROR, reject_string,
+    ANGLEMOVED, FLAG_BUSY, FLAG_NOTENABLED, GETDRIVERRPM, GETENCODERRPM, GETPIDERROR, LASTERROR,
 )
 
 
@@ -89,7 +88,8 @@ class MainLoop:
         if self.rejects != self._logged_rejects:
             self._logged_rejects = self.rejects
             cache = self._cache[LASTERROR]
-            self.log.warn("rejected a frame for register 0x%02x: %s" % (cache[1], reject_string(cache[0])))
+            self.log.warn("rejected a frame for register 0x%02x: %s"
+                          % (cache[1], self.registers.reject_string(cache[0])))
 
     def _motor_fault(self, exc):
         """The motor backend failed (driver or encoder unreachable): disable the joint for good."""
@@ -132,12 +132,12 @@ class MainLoop:
         # accepted, and nothing stopped the motor (STOP, stall, deadman) since then.
         self._motion_allowed = (not queue[base + SLOT_FLAGS] & MOTION_BLOCKED
                                 and queue[base + SLOT_HALTS] == self.halts)
-        if BY_ADDR[addr].blocking:
+        if self.registers.blocking[addr]:
             if queue[base + SLOT_STOPS] == self.stops:
                 self._finish_cancelled_task()
                 self._handlers[addr](queue, base + 1)
             else:
-                self.log.info("%s cancelled by STOP before it started" % BY_ADDR[addr].name)
+                self.log.info("%s cancelled by STOP before it started" % self.registers.name(addr))
             self._blocking_out = (self._blocking_out + 1) & COUNTER_MASK
         else:
             self._handlers[addr](queue, base + 1)

@@ -20,11 +20,12 @@ Allocation-free once constructed (tests run it with the heap locked under MicroP
 
 import gc
 
-from . import protocol as P
+from .protocol import ANGLEMOVED, GETENCODERRPM, LASTERROR
 from . import protocol_v2 as V
 from .fixed import f32_to_q
 from .i2c_target import IRQ_END_WRITE
 from .irq import COUNTER_MASK  # counters wrap before they would become long ints
+from .regtable import NOT_A_COMMAND
 
 try:
     from micropython import const
@@ -185,10 +186,9 @@ class MemLink:
         cmd = rx[V.M_CMD]
         if cmd == V.CMD_NONE:
             return V.REASON_OK
-        reg = P.BY_ADDR[cmd]
-        if not V.is_command(reg):
+        n = self._core.registers.mailbox_size[cmd]
+        if n == NOT_A_COMMAND:
             return V.REASON_COMMAND
-        n = reg.wsize
         for i in range(V.M_PAYLOAD + n, V.M_PAYLOAD + V.PAYLOAD_SIZE):
             if rx[i]:
                 return V.REASON_VALUE  # the padding must be zero
@@ -201,15 +201,15 @@ class MemLink:
         core.on_frame(frame, 1 + n)
         if core.rejects == before:
             return V.REASON_OK
-        return V.FROM_LEGACY[core.cached_reply(P.LASTERROR)[0]]
+        return V.FROM_LEGACY[core.cached_reply(LASTERROR)[0]]
 
     def _pack(self):
         core = self._core
         out = self._staged
         out[0] = (V.STATUS_MARKER | (self.verdict << V.REASON_SHIFT)
                   | (core.flags & V.STATUS_FLAGS))
-        pos = f32_to_fixed(core.cached_reply(P.ANGLEMOVED), 0, V.POSITION_Q, V.POSITION_MAX)
-        vel = f32_to_fixed(core.cached_reply(P.GETENCODERRPM), 0, V.VELOCITY_Q, V.VELOCITY_MAX)
+        pos = f32_to_fixed(core.cached_reply(ANGLEMOVED), 0, V.POSITION_Q, V.POSITION_MAX)
+        vel = f32_to_fixed(core.cached_reply(GETENCODERRPM), 0, V.VELOCITY_Q, V.VELOCITY_MAX)
         p = V.S_POSITION - V.STATE
         out[p] = pos & 0xFF
         out[p + 1] = (pos >> 8) & 0xFF

@@ -1,0 +1,57 @@
+"""What the running joint keeps of the spec (regtable.py) and what the board forgets after boot."""
+
+import sys
+
+from joint import app, protocol as P, protocol_v2 as V
+from joint.regtable import NOT_A_COMMAND, RegisterTable
+from joint.debug import DebugConsole
+from test_app import Machine, _boot
+
+ON_BOARD_PORT = sys.implementation.name == "micropython"
+
+
+def test_the_register_table_says_what_the_spec_says():
+    table = RegisterTable()
+    for addr in range(256):
+        reg = P.BY_ADDR[addr]
+        assert table.name(addr) == (reg.name if reg else "0x%02x" % addr)
+        if addr < len(table.blocking):
+            assert table.blocking[addr] == (1 if reg and reg.blocking else 0)
+            assert table.reply_size[addr] == (reg.rsize if reg and reg.readable else 0)
+        else:
+            assert reg is None
+        size = table.mailbox_size[addr]
+        assert (size != NOT_A_COMMAND) == V.is_command(reg), addr
+        if size != NOT_A_COMMAND:
+            assert size == reg.wsize
+        if reg is not None and reg.readable:
+            payload = bytes(range(1, 1 + reg.rsize))
+            assert table.decode(addr, payload) == reg.decode(payload)
+    for flags in range(256):
+        assert table.describe_flags(flags) == P.describe_flags(flags)
+    for reason in range(-1, 20):
+        assert table.reject_string(reason) == P.reject_string(reason)
+
+
+def test_the_board_forgets_the_boot_only_modules_and_runs_without_them():
+    machine = Machine()
+    core, cfg, log, lines = _boot('{"joint": "J2", "address": 18, "stall": {"gain": -1}}', machine)
+    switch = app.join_bus(machine, core, cfg, log)
+    out = []
+    console = DebugConsole(core, lambda buf: 0, out.append)
+    console.execute("status", [])
+    console.execute("regs", [])
+    core.on_frame(bytearray((0x40,)), 1)  # an unknown register: the main loop logs why
+    for _ in range(5):
+        core.service()
+        switch.service()
+        console.poll()
+    assert any("rejected a frame for register 0x40: unknown register" in line for line in lines), lines
+    assert any(line.startswith("0x0f PING") for line in out), out
+    prefix = app.__name__[:-len("app")]
+    kept = [name for name in app.BOOT_ONLY if prefix + name in sys.modules]
+    # The host (CPython) keeps the spec: its package uses it. The board's port forgets it.
+    if ON_BOARD_PORT:
+        assert kept == [], kept
+    else:
+        assert "config" in kept and "protocol" in kept, kept
