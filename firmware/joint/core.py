@@ -87,7 +87,7 @@ class JointController(IrqPath, MainLoop, Handlers, Tasks, Supervisor):
         self.trace = None  # main loop: called with the detector after every stall-detection sample
         # Reply caches: bytes of every readable register, packed ahead of the read.
         self.registers = RegisterTable()  # what the joint keeps of the spec past boot
-        self._cache = [None] * 256
+        self._cache = [None] * len(self.registers.reply_size)  # by address, as far as the spec goes
         for addr, size in enumerate(self.registers.reply_size):
             if size:
                 self._cache[addr] = bytearray(size)

@@ -163,7 +163,7 @@ class IrqPath:
     def _init_irq_tables(self):
         """Wire buffers for the reply caches and the per-register frame tables, from the spec."""
         self._wires = [None] * _REGISTERS
-        for addr in range(256):
+        for addr in range(len(self._cache)):
             cache = self._cache[addr]
             if cache is not None:
                 n = len(cache)

@@ -20,7 +20,7 @@ class MainLoop:
 
     def cached_reply(self, addr):
         """The reply payload bytes the IRQ path serves for register `addr` (None: not readable)."""
-        return self._cache[addr]
+        return self._cache[addr] if 0 <= addr < len(self._cache) else None
 
     @micropython.native
     def service(self):

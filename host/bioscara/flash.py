@@ -125,7 +125,9 @@ def build_image(joint: str, board: BoardInfo, config: tuple[bytes, firmware_conf
         if compiler is None:
             files[f"/{name}"] = source
         else:
-            files[f"/{name[:-3]}.mpy"] = compiler(source, name)
+            # Named as the board names the loaded file (its __file__): one interned string, not
+            # two, in the board's never-freed string pool (about 1 KB over the package).
+            files[f"/{name[:-3]}.mpy"] = compiler(source, f"{name[:-3]}.mpy")
     files[CONFIG_PATH] = config_text
     files[MAIN_PATH] = resources.files("bioscara.firmware").joinpath(BOARD_MAIN).read_bytes()
     return Image(joint, cfg.address, files, compiler is not None, build)
