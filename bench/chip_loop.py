@@ -25,7 +25,7 @@ from array import array
 from micropython import const
 
 from joint import app, core, debug
-from joint import protocol as P
+from joint.protocol import SETUP  # an int: holding the module would keep the spec the board drops after boot
 
 ALLOC_CALLS = const(40)
 SETTLE_CALLS = const(200)
@@ -53,7 +53,7 @@ _ALLOC_DONE = const(15)
 _SETTLED = const(16)
 
 # The original host's SETUP (drive 30 %, hold 10 %), so the host's cycling SETRPM turns the joint.
-_SETUP = bytearray((P.SETUP, 30, 10, 0, 0))
+_SETUP = bytearray((SETUP, 30, 10, 0, 0))
 _service = core.JointController.service
 _poll = debug.DebugConsole.poll
 _ticks_us = time.ticks_us
