@@ -15,7 +15,7 @@ except ImportError:
     def const(value):
         return value
 
-NOT_A_COMMAND = const(0xFF)  # mailbox_size: the register may not travel in the v2 mailbox
+NOT_A_COMMAND = const(0xFF)  # command_size(): the register may not travel in the v2 mailbox
 
 
 class RegisterTable:
@@ -29,7 +29,7 @@ class RegisterTable:
         names = [None] * space
         self.blocking = bytearray(space)  # by address below `space` (commands the IRQ accepted)
         self.reply_size = bytearray(space)  # payload bytes of a read; 0: not readable
-        self.mailbox_size = bytearray(NOT_A_COMMAND for _ in range(256))  # any command byte
+        self._command_sizes = bytearray(NOT_A_COMMAND for _ in range(space))
         self._formats = {}  # struct format of each readable register's reply payload
         for reg in P.REGISTERS:
             addr = reg.addr
@@ -39,13 +39,19 @@ class RegisterTable:
                 self.reply_size[addr] = reg.rsize
                 self._formats[addr] = reg.rfmt
             if is_command(reg):
-                self.mailbox_size[addr] = reg.wsize
+                self._command_sizes[addr] = reg.wsize
         self._names = tuple(names)
         self._flags = P.FLAG_NAMES
         reasons = [None] * (1 + max(value for value, _ in P.REJECT_REASONS))
         for value, text in P.REJECT_REASONS:
             reasons[value] = text
         self._reasons = tuple(reasons)
+
+    def command_size(self, cmd):
+        """Payload bytes of register `cmd` (any byte) in a v2 mailbox; NOT_A_COMMAND if it may not
+        travel there. Allocation-free."""
+        sizes = self._command_sizes
+        return sizes[cmd] if cmd < len(sizes) else NOT_A_COMMAND
 
     def name(self, addr):
         """The register's name; its address in hex if the spec has none."""

@@ -186,7 +186,7 @@ class MemLink:
         cmd = rx[V.M_CMD]
         if cmd == V.CMD_NONE:
             return V.REASON_OK
-        n = self._core.registers.mailbox_size[cmd]
+        n = self._core.registers.command_size(cmd)
         if n == NOT_A_COMMAND:
             return V.REASON_COMMAND
         for i in range(V.M_PAYLOAD + n, V.M_PAYLOAD + V.PAYLOAD_SIZE):

@@ -20,7 +20,7 @@ def test_the_register_table_says_what_the_spec_says():
             assert table.reply_size[addr] == (reg.rsize if reg and reg.readable else 0)
         else:
             assert reg is None
-        size = table.mailbox_size[addr]
+        size = table.command_size(addr)
         assert (size != NOT_A_COMMAND) == V.is_command(reg), addr
         if size != NOT_A_COMMAND:
             assert size == reg.wsize
