@@ -18,7 +18,9 @@ still pending from the write before it.
   END_READ closes the transaction.
 """
 
-from .emitters import micropython, ptr8
+from array import array
+
+from .emitters import micropython, ptr8, ptr32
 
 from .irq import FTAB_WLEN, REGISTER_SPACE
 from .protocol import MAX_FRAME
@@ -42,13 +44,112 @@ COUNTER_MASK = const(0x1FFFFFFF)  # irq.COUNTER_MASK (viper needs this module's 
 _MAX_FRAME = const(5)
 _WLEN = const(64)  # where irq.py's frame table keeps each register's command frame length
 _REGISTERS = const(64)  # every register address is below this
-_FRAME_OPEN = const(-2)  # _reply_pos: no read in progress, a frame kept open
 if _MAX_FRAME != MAX_FRAME or _WLEN != FTAB_WLEN or _REGISTERS != REGISTER_SPACE:
     raise ImportError("i2c_target.py: constants differ from protocol.py / irq.py")
 
 
 def _never():
     return False
+
+
+# The adapter's state words (one int32 array: the handler reaches them through one pointer).
+_S_LEN = const(0)  # frame bytes received so far
+_S_READ = const(1)  # _IDLE, _READING or _OPEN
+_S_POS = const(2)  # reply bytes handed to the port
+_S_RLEN = const(3)  # the reply's length
+_S_WHOLE = const(4)  # 1: write() takes a whole reply
+_S_WORDS = const(5)
+_IDLE = const(0)  # no read in progress
+_READING = const(1)
+_OPEN = const(2)  # no read in progress, a frame kept open (see I2CTargetAdapter)
+# The handler's objects, one tuple: entries 0..MAX_FRAME are where the next received bytes go, by
+# frame length so far (an overlong frame's extra bytes land past MAX_FRAME), then these.
+_K_FRAME = const(6)
+_K_WIRES = const(7)
+_K_FTAB = const(8)
+_K_ON_FRAME = const(9)
+_K_TICKS_US = const(10)
+_K_BUS_ACTIVE = const(11)
+_K_ONE = const(12)
+_K_PAD = const(13)
+
+
+def _handler(s, core, k, flags_of):
+    """The hard-IRQ handler, a viper closure: its cells cost less than attribute lookups (about
+    2.4 us each on the chip), its state is the int32 array `s`, the rest the tuple `k`. At most 4
+    cells: calling a closure with more (plus its argument) allocates (py/objclosure.c)."""
+
+    @micropython.viper
+    def irq(target):
+        # The events in the order of their urgency: a READ_REQ holds SCL until it is answered.
+        event = int(flags_of())  # one event per call
+        st = ptr32(s)
+        if event == IRQ_READ_REQ:
+            if st[_S_READ] != _READING:  # the read's first request: the selected reply, flags as of now
+                if st[_S_READ] == _OPEN:  # a frame kept open (see I2CTargetAdapter) ends here
+                    length = st[_S_LEN]
+                    st[_S_LEN] = 0
+                    on_frame = k[_K_ON_FRAME]
+                    on_frame(k[_K_FRAME], length)
+                wire = core._reply_wire
+                n = int(len(wire))
+                ptr8(wire)[n - 1] = int(core.flags) | int(core._reply_err)
+                if st[_S_WHOLE]:
+                    sent = int(target.write(wire))
+                else:
+                    one = k[_K_ONE]
+                    ptr8(one)[0] = ptr8(wire)[0]
+                    sent = int(target.write(one))
+                # SCL runs again once the port has the first byte: the bookkeeping comes after.
+                st[_S_READ] = _READING
+                st[_S_POS] = sent
+                st[_S_RLEN] = n
+                return
+            pos = st[_S_POS]
+            if pos < st[_S_RLEN]:  # a port that took less: the rest a byte at a time
+                one = k[_K_ONE]
+                ptr8(one)[0] = ptr8(core._reply_wire)[pos]
+                st[_S_POS] = pos + int(target.write(one))
+            else:
+                target.write(k[_K_PAD])
+            return
+        if event == IRQ_WRITE_REQ:
+            length = st[_S_LEN]
+            st[_S_LEN] = length + int(target.readinto(k[length if length < _MAX_FRAME else _MAX_FRAME]))
+            return
+        if event == IRQ_END_WRITE:
+            # END_WRITE drains too: rp2 handles a repeated START before the RX data that came with
+            # it, so the last bytes of a command can still be in the FIFO (chip/README.md).
+            length = st[_S_LEN]
+            length += int(target.readinto(k[length if length < _MAX_FRAME else _MAX_FRAME]))
+            frame = k[_K_FRAME]
+            addr = ptr8(frame)[0]
+            if length == 1 and addr < _REGISTERS:  # selected for reading: on_frame's first case
+                selection = k[_K_WIRES][addr]
+                if selection:
+                    core._reply_wire = selection
+                    core._reply_err = 0
+                    st[_S_LEN] = 0
+                    st[_S_READ] = _IDLE
+                    return  # the read that follows ends the transaction (END_READ feeds the deadman)
+            if length and length < _MAX_FRAME and addr < _REGISTERS:  # (no frame is longer)
+                if length < ptr8(k[_K_FTAB])[_WLEN + addr]:
+                    bus_active = k[_K_BUS_ACTIVE]
+                    if bus_active():
+                        st[_S_LEN] = length  # cut short by the driver: the rest follows
+                        st[_S_READ] = _OPEN
+                        return
+            st[_S_LEN] = 0
+            st[_S_READ] = _IDLE  # (an _OPEN frame closed here was empty)
+            on_frame = k[_K_ON_FRAME]
+            on_frame(frame, length)
+        else:  # END_READ
+            st[_S_READ] = _IDLE
+        ticks_us = k[_K_TICKS_US]
+        core.host_us = ticks_us()  # host_seen(), inlined: the deadman counts from here
+        core.transactions = (int(core.transactions) + 1) & COUNTER_MASK
+
+    return irq
 
 
 class I2CTargetAdapter:
@@ -66,95 +167,21 @@ class I2CTargetAdapter:
     """
 
     def __init__(self, core, target, whole_reply_writes=True, bus_active=None):
-        self._core = core
         self._target = target
-        self._whole = whole_reply_writes
-        self._frame = bytearray(MAX_FRAME + _CHUNK)
-        view = memoryview(self._frame)
-        # Where the next received bytes go, by frame length so far (an overlong frame's extra
-        # bytes land past MAX_FRAME): made now because slicing in the IRQ would allocate. Each
-        # has room for a whole RX FIFO.
-        self._rx_at = [view[i:] for i in range(MAX_FRAME + 1)]
-        self._frame_len = 0
-        self._one = bytearray(1)
-        self._pad = bytearray(1)
-        self._wire = core._reply_wire
-        self._reply_len = 0
-        self._reply_pos = -1  # -1: no read in progress
-        # Bound methods made once: looking them up in the IRQ would walk the core's mixins.
-        self._on_frame = core.on_frame
-        self._ftab = core._ftab
-        self._bus_active = bus_active or _never
-        self._wires = core._wires
-        self._ticks_us = core._ticks_us
-        self._handler = self._irq
+        frame = bytearray(MAX_FRAME + _CHUNK)
+        view = memoryview(frame)
+        # Made now because slicing in the IRQ would allocate. Each has room for a whole RX FIFO.
+        k = tuple([view[i:] for i in range(MAX_FRAME + 1)]) + (
+            frame, core._wires, core._ftab, core.on_frame, core._ticks_us, bus_active or _never,
+            bytearray(1), bytearray(1))
+        if len(k) != _K_PAD + 1:
+            raise ImportError("i2c_target.py: the handler's object table is out of order")
+        self._state = array("i", [0] * _S_WORDS)
+        self._state[_S_WHOLE] = 1 if whole_reply_writes else 0
         # The irq object first: a host already polling at boot fires the handler the moment it is set.
-        self._events = target.irq()
-        target.irq(self._handler, trigger=TRIGGER, hard=True)
+        # Bound methods made once: looking them up in the IRQ would walk the core's mixins.
+        self._irq = _handler(self._state, core, k, target.irq().flags)
+        target.irq(self._irq, trigger=TRIGGER, hard=True)
 
     def deinit(self):
         self._target.irq(None, trigger=0, hard=True)
-
-    @micropython.viper
-    def _irq(self, target):
-        # The events in the order of their urgency: a READ_REQ holds SCL until it is answered.
-        event = int(self._events.flags())  # one event per call
-        if event == IRQ_READ_REQ:
-            pos = int(self._reply_pos)
-            if pos < 0:  # the read's first request: the selected reply, its flags as of now
-                if pos == _FRAME_OPEN:  # a frame kept open (see the class docstring) ends here
-                    length = int(self._frame_len)
-                    self._frame_len = 0
-                    self._on_frame(self._frame, length)
-                core = self._core
-                wire = core._reply_wire
-                n = int(len(wire))
-                ptr8(wire)[n - 1] = int(core.flags) | int(core._reply_err)
-                if self._whole:
-                    sent = int(target.write(wire))
-                else:
-                    ptr8(self._one)[0] = ptr8(wire)[0]
-                    sent = int(target.write(self._one))
-                # SCL runs again once the port has the first byte: the bookkeeping comes after.
-                self._reply_pos = sent
-                self._wire = wire
-                self._reply_len = n
-                return
-            if pos < int(self._reply_len):  # a port that took less: the rest a byte at a time
-                ptr8(self._one)[0] = ptr8(self._wire)[pos]
-                self._reply_pos = pos + int(target.write(self._one))
-            else:
-                self._reply_pos = pos
-                target.write(self._pad)
-            return
-        if event == IRQ_WRITE_REQ:
-            length = int(self._frame_len)
-            at = self._rx_at[length if length < _MAX_FRAME else _MAX_FRAME]
-            self._frame_len = length + int(target.readinto(at))
-            return
-        core = self._core
-        if event == IRQ_END_WRITE:
-            # END_WRITE drains too: rp2 handles a repeated START before the RX data that came with
-            # it, so the last bytes of a command can still be in the FIFO (chip/README.md).
-            length = int(self._frame_len)
-            length += int(target.readinto(self._rx_at[length if length < _MAX_FRAME else _MAX_FRAME]))
-            addr = ptr8(self._frame)[0]
-            if length == 1 and addr < _REGISTERS:  # selected for reading: on_frame's first case
-                selection = self._wires[addr]
-                if selection:
-                    core._reply_wire = selection
-                    core._reply_err = 0
-                    self._frame_len = 0
-                    return  # the read that follows ends the transaction (END_READ feeds the deadman)
-            if length and length < _MAX_FRAME and addr < _REGISTERS:  # (no frame is longer)
-                if length < ptr8(self._ftab)[_WLEN + addr]:
-                    if self._bus_active():
-                        self._frame_len = length  # cut short by the driver: the rest follows
-                        self._reply_pos = _FRAME_OPEN
-                        return
-            self._frame_len = 0  # (a _FRAME_OPEN left in _reply_pos only closes an empty frame)
-            self._on_frame(self._frame, length)
-        else:  # END_READ
-            self._reply_pos = -1
-        core.host_us = self._ticks_us()  # host_seen(), inlined: the deadman counts from here
-        core.transactions = (int(core.transactions) + 1) & COUNTER_MASK
