@@ -18,6 +18,8 @@ from .v2 import ProtocolSwitch
 # addressed to the target is in progress. The v2 swap waits for it to clear.
 _RP2040_IC_STATUS = (0x40044070, 0x40048070)
 _SLV_ACTIVITY = 0x40
+# Its IC_RX_TL (RX FIFO threshold): the legacy adapter raises it while a command's bytes arrive.
+_RP2040_IC_RX_TL = (0x40044038, 0x40048038)
 _SLOW_EVERY_MASK = 3  # the console and the legacy protocol switch: every 4th main-loop iteration
 
 
@@ -60,12 +62,17 @@ def _drop_boot_only():
         del sys.modules[name]
 
 
+def _on_rp2040(machine):
+    import sys
+    return (sys.platform == "rp2" and getattr(machine, "mem32", None) is not None
+            and "RP2040" in getattr(sys.implementation, "_machine", ""))
+
+
 def bus_activity_probe(machine, bus):
     """A callable that is true while a transaction is in progress on target `bus`: the RP2040's
     activity bit; elsewhere none (always false: a torn state block is then caught by its CRC)."""
-    import sys
     mem32 = getattr(machine, "mem32", None)
-    if sys.platform == "rp2" and mem32 is not None and "RP2040" in getattr(sys.implementation, "_machine", ""):
+    if _on_rp2040(machine):
         status = _RP2040_IC_STATUS[bus]
 
         def active():
@@ -92,9 +99,10 @@ def join_bus(machine, core, cfg, log):
         return machine.I2CTarget(i2c.bus, cfg.address, mem=mem, mem_addrsize=MEM_ADDRSIZE, **pins)
 
     probe = bus_activity_probe(machine, i2c.bus)
+    rx_threshold = _RP2040_IC_RX_TL[i2c.bus] if _on_rp2040(machine) else 0
 
     def legacy_adapter(target):
-        return I2CTargetAdapter(core, target, i2c.whole_reply_writes, probe)
+        return I2CTargetAdapter(core, target, i2c.whole_reply_writes, probe, rx_threshold)
 
     try:
         return ProtocolSwitch(core, cfg.address, make_target, legacy_adapter,

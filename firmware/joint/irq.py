@@ -55,13 +55,14 @@ _FLAG_NOTENABLED = const(0x08)
 _HOMEOFFSET = const(0x2E)
 _STOP = const(0x29)
 _SETRPM = const(0x11)
+_FLAG_ERROR = const(0x10)
 if ((_R_NONE, _R_UNKNOWN_REGISTER, _R_LENGTH, _R_VALUE, _R_BUSY, _R_QUEUE_FULL, _R_DISABLED,
      _R_NOT_ENABLED, _R_STALLED, _R_HOMING_SENSITIVITY, _FLAG_STALL, _FLAG_NOTENABLED, _HOMEOFFSET,
-     _STOP, _SETRPM, SLOT_FLAGS, SLOT)
+     _STOP, _SETRPM, SLOT_FLAGS, SLOT, _FLAG_ERROR)
         != (REJECT_NONE, REJECT_UNKNOWN_REGISTER, REJECT_LENGTH, REJECT_VALUE, REJECT_BUSY,
             REJECT_QUEUE_FULL, REJECT_DISABLED, REJECT_NOT_ENABLED, REJECT_STALLED,
             REJECT_HOMING_SENSITIVITY, FLAG_STALL, FLAG_NOTENABLED, HOMEOFFSET, STOP, SETRPM,
-            MAX_FRAME, MAX_FRAME + 3)):
+            MAX_FRAME, MAX_FRAME + 3, FLAG_ERROR)):
     raise ImportError("irq.py constants differ from protocol.py")
 
 # The frame table (`_ftab`, one bytearray so viper code reaches it through one pointer): by register
@@ -183,21 +184,34 @@ class IrqPath:
 
     @micropython.viper
     def on_frame(self, frame, n: int):
-        """A write of n bytes (register + payload) ended. `frame` holds at most MAX_FRAME bytes."""
+        """A write of n bytes (register + payload) ended. `frame` holds at most MAX_FRAME bytes.
+        Selects the reply the next read gets: the register's (n == 1, a readable register), else
+        the flags, with ERROR if the frame was rejected."""
         if n == 0:
             return  # address probe (bus scan)
-        f = ptr8(frame)
-        t = ptr8(self._ftab)
-        addr = f[0]
-        if addr >= _REGISTERS:
-            self._reject(addr, _R_UNKNOWN_REGISTER)
-            return
-        if n == 1:
+        addr = ptr8(frame)[0]
+        if n == 1 and addr < _REGISTERS:
             wire = self._wires[addr]
             if wire:
                 self._reply_wire = wire
                 self._reply_err = 0
                 return
+        reason = int(self.judge(frame, n))
+        self._reply_wire = self._flags_wire
+        self._reply_err = _FLAG_ERROR if reason else 0
+
+    @micropython.viper
+    def judge(self, frame, n: int) -> int:
+        """A command frame of n >= 1 bytes that is no register selection (on_frame): validated,
+        its flag changes applied and queued, or rejected (LASTERROR). Returns the reject reason,
+        REJECT_NONE if accepted. The legacy IRQ adapter calls it directly and keeps the reply
+        selection itself."""
+        f = ptr8(frame)
+        addr = f[0]
+        if addr >= _REGISTERS:
+            self._reject(addr, _R_UNKNOWN_REGISTER)
+            return _R_UNKNOWN_REGISTER
+        t = ptr8(self._ftab)
         # The payload against the spec, as Register.check_write judges it.
         reason = t[_PRE + addr]
         if reason == _R_NONE and n != t[_WLEN + addr]:
@@ -260,7 +274,7 @@ class IrqPath:
                             reason = _R_NOT_ENABLED
         if reason != _R_NONE:
             self._reject(addr, reason)
-            return
+            return reason
         clears = t[_CLEARS + addr]
         flags = (flags | t[_SETS + addr]) & (0xFF ^ clears)
         if f[1] == 0:
@@ -294,8 +308,7 @@ class IrqPath:
                 self._blocking_stops = stops
                 self._blocking_in = (int(self._blocking_in) + 1) & COUNTER_MASK
             self._q_in = (q_in + 1) & COUNTER_MASK
-        self._reply_wire = self._flags_wire
-        self._reply_err = 0
+        return _R_NONE
 
     def _blocking_live(self):
         """A blocking command is queued or running and no STOP has cancelled it."""
@@ -304,8 +317,6 @@ class IrqPath:
         return self._task is not None and self._task_stops == self.stops
 
     def _reject(self, addr, reason):
-        self._reply_wire = self._flags_wire
-        self._reply_err = FLAG_ERROR
         self.rejects = (self.rejects + 1) & 0xFFFF
         cache = self._cache[LASTERROR]
         cache[0] = reason
