@@ -153,55 +153,11 @@ def frame_table():
     return t
 
 
-class IrqPath:
-    """JointController's IRQ-side methods (mixed into it): no allocation anywhere here.
-
-    A read is served from `_reply_wire`, the selected register's wire buffer (the flags go in its
-    last byte, the only one of a flags-only reply), selected once when the register is written.
-    """
-
-    def _init_irq_tables(self):
-        """Wire buffers for the reply caches and the per-register frame tables, from the spec."""
-        self._wires = [None] * _REGISTERS
-        for addr in range(256):
-            cache = self._cache[addr]
-            if cache is not None:
-                n = len(cache)
-                wire = bytearray(n + 1)
-                wire[:n] = cache
-                view = memoryview(wire)
-                self._cache[addr] = view[:n]  # the main loop packs here, as before
-                self._wires[addr] = view
-        self._flags_wire = memoryview(bytearray(1))
-        self._ftab = frame_table()
-        self._reply_wire = self._wires[PING]
-        self._reply_err = 0
-
-    def host_seen(self):
-        """A transaction addressed to this joint ended (feeds the deadman)."""
-        self.host_us = self._ticks_us()  # when: the deadman counts from here, not from the loop
-        self.transactions = (self.transactions + 1) & COUNTER_MASK
+def _judge_for(core, ftab, queue_buf):
+    """`core.judge`: a viper closure (its tables in cells, not looked up per call)."""
 
     @micropython.viper
-    def on_frame(self, frame, n: int):
-        """A write of n bytes (register + payload) ended. `frame` holds at most MAX_FRAME bytes.
-        Selects the reply the next read gets: the register's (n == 1, a readable register), else
-        the flags, with ERROR if the frame was rejected."""
-        if n == 0:
-            return  # address probe (bus scan)
-        addr = ptr8(frame)[0]
-        if n == 1 and addr < _REGISTERS:
-            wire = self._wires[addr]
-            if wire:
-                self._reply_wire = wire
-                self._reply_err = 0
-                return
-        reason = int(self.judge(frame, n))
-        self._reply_wire = self._flags_wire
-        self._reply_err = _FLAG_ERROR if reason else 0
-
-    @micropython.viper
-    def judge(self, frame, n: int) -> int:
+    def judge(frame, n: int) -> int:
         """A command frame of n >= 1 bytes that is no register selection (on_frame): validated,
         its flag changes applied and queued, or rejected (LASTERROR). Returns the reject reason,
         REJECT_NONE if accepted. The legacy IRQ adapter calls it directly and keeps the reply
@@ -209,9 +165,9 @@ class IrqPath:
         f = ptr8(frame)
         addr = f[0]
         if addr >= _REGISTERS:
-            self._reject(addr, _R_UNKNOWN_REGISTER)
+            core._reject(addr, _R_UNKNOWN_REGISTER)
             return _R_UNKNOWN_REGISTER
-        t = ptr8(self._ftab)
+        t = ptr8(ftab)
         # The payload against the spec, as Register.check_write judges it.
         reason = t[_PRE + addr]
         if reason == _R_NONE and n != t[_WLEN + addr]:
@@ -248,22 +204,22 @@ class IrqPath:
                 if value < (t[o] | (t[o + 1] << 8)) or value > (t[o + 2] | (t[o + 3] << 8)):
                     reason = _R_VALUE
         # Then the joint's state.
-        flags = int(self.flags)
-        q_in = int(self._q_in)
+        flags = int(core.flags)
+        q_in = int(core._q_in)
         if reason == _R_NONE:
-            if self.disabled:
+            if core.disabled:
                 reason = _R_DISABLED
-            elif t[_BLOCKS + addr] and bool(self._blocking_live()):
+            elif t[_BLOCKS + addr] and bool(core._blocking_live()):
                 reason = _R_BUSY
             elif (addr != _HOMEOFFSET and addr != _STOP
-                  and ((q_in - int(self._q_out)) & COUNTER_MASK) >= QUEUE_SLOTS):
+                  and ((q_in - int(core._q_out)) & COUNTER_MASK) >= QUEUE_SLOTS):
                 reason = _R_QUEUE_FULL
             else:
                 # What the joint's state refuses: motion while stalled or not enabled (0 rpm
                 # always goes through), HOME at or below the sensitivity noise floor.
                 refuse = t[_REFUSE + addr]
                 if refuse == _HOMING:
-                    floor = int(self._homing_floor) + ((f[2] * int(self._homing_floor_q)) >> 10)
+                    floor = int(core._homing_floor) + ((f[2] * int(core._homing_floor_q)) >> 10)
                     if f[3] <= floor:
                         reason = _R_HOMING_SENSITIVITY
                 elif refuse == _MOTION:
@@ -273,42 +229,97 @@ class IrqPath:
                         elif flags & _FLAG_NOTENABLED:
                             reason = _R_NOT_ENABLED
         if reason != _R_NONE:
-            self._reject(addr, reason)
+            core._reject(addr, reason)
             return reason
         clears = t[_CLEARS + addr]
+        before = flags
         flags = (flags | t[_SETS + addr]) & (0xFF ^ clears)
         if f[1] == 0:
             flags |= t[_ZERO_SETS + addr]
-        self.flags = flags
+        if flags != before:  # (a store costs an attribute lookup: most commands change nothing)
+            core.flags = flags
         if clears & _FLAG_STALL:
-            self.stall_rearms = (int(self.stall_rearms) + 1) & 0xFF
+            core.stall_rearms = (int(core.stall_rearms) + 1) & 0xFF
         if addr == _STOP:
             # Immediate, as in the original's ISR: cancels the running blocking command and any
             # motion still queued; the main loop commands 0 RPM next.
-            self.stops = (int(self.stops) + 1) & 0xFF
-            self.halts = (int(self.halts) + 1) & 0xFF
+            core.stops = (int(core.stops) + 1) & 0xFF
+            core.halts = (int(core.halts) + 1) & 0xFF
         elif addr == _HOMEOFFSET:
-            cache = ptr8(self._cache[_HOMEOFFSET])
+            cache = ptr8(core._cache[_HOMEOFFSET])
             cache[0] = f[1]
             cache[1] = f[2]
             cache[2] = f[3]
             cache[3] = f[4]
         else:
             base = (q_in & (QUEUE_SLOTS - 1)) * SLOT
-            queue = ptr8(self._queue)
+            queue = ptr8(queue_buf)
             i = 0
             while i < n:
                 queue[base + i] = f[i]
                 i += 1
-            stops = int(self.stops)
+            stops = int(core.stops)
             queue[base + SLOT_FLAGS] = flags
-            queue[base + SLOT_HALTS] = int(self.halts)
+            queue[base + SLOT_HALTS] = int(core.halts)
             queue[base + SLOT_STOPS] = stops
             if t[_BLOCKS + addr]:
-                self._blocking_stops = stops
-                self._blocking_in = (int(self._blocking_in) + 1) & COUNTER_MASK
-            self._q_in = (q_in + 1) & COUNTER_MASK
+                core._blocking_stops = stops
+                core._blocking_in = (int(core._blocking_in) + 1) & COUNTER_MASK
+            core._q_in = (q_in + 1) & COUNTER_MASK
         return _R_NONE
+
+    return judge
+
+
+class IrqPath:
+    """JointController's IRQ-side methods (mixed into it): no allocation anywhere here.
+
+    A read is served from `_reply_wire`, the selected register's wire buffer (the flags go in its
+    last byte, the only one of a flags-only reply), selected once when the register is written.
+    """
+
+    def _init_irq_tables(self):
+        """Wire buffers for the reply caches and the per-register frame tables, from the spec."""
+        self._wires = [None] * _REGISTERS
+        for addr in range(256):
+            cache = self._cache[addr]
+            if cache is not None:
+                n = len(cache)
+                wire = bytearray(n + 1)
+                wire[:n] = cache
+                view = memoryview(wire)
+                self._cache[addr] = view[:n]  # the main loop packs here, as before
+                self._wires[addr] = view
+        self._flags_wire = memoryview(bytearray(1))
+        self._ftab = frame_table()
+        self._queue = bytearray(QUEUE_SLOTS * SLOT)
+        self.judge = _judge_for(self, self._ftab, self._queue)
+        self._reply_wire = self._wires[PING]
+        self._reply_err = 0
+
+    def host_seen(self):
+        """A transaction addressed to this joint ended (feeds the deadman)."""
+        self.host_us = self._ticks_us()  # when: the deadman counts from here, not from the loop
+        self.transactions = (self.transactions + 1) & COUNTER_MASK
+
+    @micropython.viper
+    def on_frame(self, frame, n: int):
+        """A write of n bytes (register + payload) ended. `frame` holds at most MAX_FRAME bytes.
+        Selects the reply the next read gets: the register's (n == 1, a readable register), else
+        the flags, with ERROR if the frame was rejected."""
+        if n == 0:
+            return  # address probe (bus scan)
+        addr = ptr8(frame)[0]
+        if n == 1 and addr < _REGISTERS:
+            wire = self._wires[addr]
+            if wire:
+                self._reply_wire = wire
+                self._reply_err = 0
+                return
+        judge = self.judge
+        reason = int(judge(frame, n))
+        self._reply_wire = self._flags_wire
+        self._reply_err = _FLAG_ERROR if reason else 0
 
     def _blocking_live(self):
         """A blocking command is queued or running and no STOP has cancelled it."""
