@@ -16,6 +16,10 @@ still pending from the write before it.
   once, and the port takes what it can (one byte on most ports, up to the TX FIFO on rp2). The
   hardware asks for one byte past the end (prefetch, or rp2's RX_DONE), which gets a pad byte.
   END_READ closes the transaction.
+
+The handler is one viper closure (`_handler`): on the chip an attribute lookup costs ~2.4 us and a
+dispatch 11-18 us, so its state is an int32 array and its objects a tuple, and the reply selection
+is kept here (`core.judge` judges a command; `core.on_frame` is the same for other callers).
 """
 
 from array import array
