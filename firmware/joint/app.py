@@ -18,8 +18,8 @@ from .v2 import ProtocolSwitch
 # addressed to the target is in progress. The v2 swap waits for it to clear.
 _RP2040_IC_STATUS = (0x40044070, 0x40048070)
 _SLV_ACTIVITY = 0x40
-# Its IC_RX_TL (RX FIFO threshold): the legacy adapter raises it while a command's bytes arrive.
-_RP2040_IC_RX_TL = (0x40044038, 0x40048038)
+# The I2C0/I2C1 blocks: the legacy adapter sets the RX FIFO threshold and the RX_DONE mask there.
+_RP2040_I2C = (0x40044000, 0x40048000)
 _SLOW_EVERY_MASK = 3  # the console and the legacy protocol switch: every 4th main-loop iteration
 
 
@@ -99,10 +99,10 @@ def join_bus(machine, core, cfg, log):
         return machine.I2CTarget(i2c.bus, cfg.address, mem=mem, mem_addrsize=MEM_ADDRSIZE, **pins)
 
     probe = bus_activity_probe(machine, i2c.bus)
-    rx_threshold = _RP2040_IC_RX_TL[i2c.bus] if _on_rp2040(machine) else 0
+    block = _RP2040_I2C[i2c.bus] if _on_rp2040(machine) else 0
 
     def legacy_adapter(target):
-        return I2CTargetAdapter(core, target, i2c.whole_reply_writes, probe, rx_threshold)
+        return I2CTargetAdapter(core, target, i2c.whole_reply_writes, probe, block)
 
     try:
         return ProtocolSwitch(core, cfg.address, make_target, legacy_adapter,

@@ -72,6 +72,12 @@ _SEL_FLAGS = const(64)  # the flags alone
 _IDLE = const(0)  # no read in progress
 _READING = const(1)
 _OPEN = const(2)  # no read in progress, a frame kept open (see I2CTargetAdapter)
+# The RP2040's DW_apb_i2c (datasheet 4.3): register offsets, the atomic set/clear aliases.
+_IC_INTR_MASK = const(0x30)
+_IC_RX_TL = const(0x38)
+_M_RX_DONE = const(0x80)
+_ATOMIC_SET = const(0x2000)
+_ATOMIC_CLEAR = const(0x3000)
 _RX_TL_BASE = const(0)  # the driver's: RX_FULL with the first byte (the driver's state machine needs it)
 _ERROR = const(0x10)  # protocol.FLAG_ERROR
 # The handler's objects, one tuple: entries 0..MAX_FRAME are where the next received bytes go, by
@@ -202,21 +208,27 @@ class I2CTargetAdapter:
     short while the bus is still active is therefore kept open: the rest of it follows, and a read
     (repeated START) closes it as it is.
 
-    `rx_threshold` is the address of the peripheral's RX FIFO threshold register (the RP2040's
-    IC_RX_TL, app.py; 0: none). Each event costs a Python call (15-20 us on the chip), and a fast
-    handler takes a command's bytes one RX_FULL interrupt each. Once the register byte is in
-    (the first RX_FULL: the driver only ends a write that had one), the threshold is raised so
-    that the next RX_FULL comes when the register's frame is whole, and it is set back to 0 (the
-    driver's value) when the write ends. A write-only frame shorter than its register's then
-    waits in the FIFO (the driver keeps its STOP pending) until the next transaction starts,
-    which ends that write first: it is malformed and rejected all the same, before anything else.
+    `rp2040_i2c` is the RP2040 I2C block's base address (app.py; 0: another port). Each event
+    costs a Python call (11-18 us on the chip) and the adapter saves two there, through the
+    peripheral's registers:
+
+    * A fast handler takes a command's bytes one RX_FULL interrupt each. Once the register byte
+      is in (the first RX_FULL: the driver only ends a write that had one), the RX FIFO threshold
+      (IC_RX_TL) is raised so that the next RX_FULL comes when the register's frame is whole, and
+      set back to 0 (the driver's value) when the write ends. A write-only frame shorter than its
+      register's then waits in the FIFO (the driver keeps its STOP pending) until the next
+      transaction starts, which ends that write first: it is malformed and rejected all the same.
+    * RX_DONE (the controller's NAK after a read's last byte) is masked in IC_INTR_MASK: the
+      driver only answers it with one more READ_REQ, whose pad byte never reaches the wire (it
+      is flushed at the next read). A read longer than its reply still gets its pad bytes (each
+      one a READ_REQ). The driver changes the mask bit by bit, so the bit stays cleared.
 
     A transaction is counted (`core.transactions`, `core.host_us` for the deadman) once, at the
     end of its write, or at the end of its read if it had no write (a read-only transaction right
     after a write-only one is not counted).
     """
 
-    def __init__(self, core, target, whole_reply_writes=True, bus_active=None, rx_threshold=0):
+    def __init__(self, core, target, whole_reply_writes=True, bus_active=None, rp2040_i2c=0):
         self._target = target
         frame = bytearray(MAX_FRAME + _CHUNK)
         view = memoryview(frame)
@@ -229,18 +241,22 @@ class I2CTargetAdapter:
             raise ImportError("i2c_target.py: the handler's object table is out of order")
         st = self._state = array("i", [0] * _S_WORDS)
         st[_S_WHOLE] = 1 if whole_reply_writes else 0
-        st[_S_RX_TL] = rx_threshold
+        st[_S_RX_TL] = rp2040_i2c + _IC_RX_TL if rp2040_i2c else 0
         st[_S_SEL] = PING
         for addr in range(_REGISTERS):
             st[_S_WLEN + addr] = core._ftab[_WLEN + addr]
         for sel, wire in enumerate(wires):
             st[_S_RSIZE + sel] = len(wire) if wire else 0
-        self._rx_threshold = rx_threshold
+        self._rp2040_i2c = rp2040_i2c
         # The irq object first: a host already polling at boot fires the handler the moment it is set.
         self._irq = _handler(st, core, k, target.irq().flags)
         target.irq(self._irq, trigger=TRIGGER, hard=True)
+        if rp2040_i2c:
+            _store32(rp2040_i2c + _ATOMIC_CLEAR + _IC_INTR_MASK, _M_RX_DONE)
 
     def deinit(self):
         self._target.irq(None, trigger=0, hard=True)
-        if self._rx_threshold:
-            _store32(self._rx_threshold, 0)
+        base = self._rp2040_i2c
+        if base:
+            _store32(base + _IC_RX_TL, 0)
+            _store32(base + _ATOMIC_SET + _IC_INTR_MASK, _M_RX_DONE)
