@@ -84,7 +84,9 @@ _LO = const(512)  # CHECK_BYTES: payload byte i within [_LO, _HI] at addr*4 + i
 _HI = const(768)
 _LIMITS = const(1024)  # CHECK_F32: the |value| limits as 16-bit halves (low high16, low low16,
 #                        high high16, high low16), little-endian, at addr*8; CHECK_U16: low, high
-_FTAB_SIZE = const(1536)
+_DISABLED = const(1536)  # 1: the joint is disabled (core.disabled, mirrored: one byte, no lookup)
+FTAB_DISABLED = const(1536)  # for loop.py
+_FTAB_SIZE = const(1537)
 _MOTION = const(1)  # refused while stalled or not enabled (SETRPM: unless 0 rpm)
 _HOMING = const(2)  # refused at or below the homing sensitivity noise floor
 
@@ -207,7 +209,7 @@ def _judge_for(core, ftab, queue_buf):
         flags = int(core.flags)
         q_in = int(core._q_in)
         if reason == _R_NONE:
-            if core.disabled:
+            if t[_DISABLED]:
                 reason = _R_DISABLED
             elif t[_BLOCKS + addr] and bool(core._blocking_live()):
                 reason = _R_BUSY
@@ -292,6 +294,7 @@ class IrqPath:
                 self._wires[addr] = view
         self._flags_wire = memoryview(bytearray(1))
         self._ftab = frame_table()
+        self._ftab[FTAB_DISABLED] = 1 if self.disabled else 0
         self._queue = bytearray(QUEUE_SLOTS * SLOT)
         self.judge = _judge_for(self, self._ftab, self._queue)
         self._reply_wire = self._wires[PING]
