@@ -84,9 +84,14 @@ _LO = const(512)  # CHECK_BYTES: payload byte i within [_LO, _HI] at addr*4 + i
 _HI = const(768)
 _LIMITS = const(1024)  # CHECK_F32: the |value| limits as 16-bit halves (low high16, low low16,
 #                        high high16, high low16), little-endian, at addr*8; CHECK_U16: low, high
-_DISABLED = const(1536)  # 1: the joint is disabled (core.disabled, mirrored: one byte, no lookup)
+# State bytes mirrored from the core's attributes where they are written (a byte here costs the
+# viper code no lookup): 1 if the joint is disabled; the stop and halt epochs.
+_DISABLED = const(1536)
+_STOPS = const(1537)
+_HALTS = const(1538)
 FTAB_DISABLED = const(1536)  # for loop.py
-_FTAB_SIZE = const(1537)
+FTAB_HALTS = const(1538)
+_FTAB_SIZE = const(1539)
 _MOTION = const(1)  # refused while stalled or not enabled (SETRPM: unless 0 rpm)
 _HOMING = const(2)  # refused at or below the homing sensitivity noise floor
 
@@ -245,8 +250,12 @@ def _judge_for(core, ftab, queue_buf):
         if addr == _STOP:
             # Immediate, as in the original's ISR: cancels the running blocking command and any
             # motion still queued; the main loop commands 0 RPM next.
-            core.stops = (int(core.stops) + 1) & 0xFF
-            core.halts = (int(core.halts) + 1) & 0xFF
+            stops = (t[_STOPS] + 1) & 0xFF
+            halts = (t[_HALTS] + 1) & 0xFF
+            t[_STOPS] = stops
+            t[_HALTS] = halts
+            core.stops = stops
+            core.halts = halts
         elif addr == _HOMEOFFSET:
             cache = ptr8(core._cache[_HOMEOFFSET])
             cache[0] = f[1]
@@ -260,9 +269,9 @@ def _judge_for(core, ftab, queue_buf):
             while i < n:
                 queue[base + i] = f[i]
                 i += 1
-            stops = int(core.stops)
+            stops = t[_STOPS]
             queue[base + SLOT_FLAGS] = flags
-            queue[base + SLOT_HALTS] = int(core.halts)
+            queue[base + SLOT_HALTS] = t[_HALTS]
             queue[base + SLOT_STOPS] = stops
             if t[_BLOCKS + addr]:
                 core._blocking_stops = stops

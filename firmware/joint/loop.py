@@ -10,7 +10,8 @@ from .emitters import micropython
 
 from .fixed import ANGLE_Q, RPM_Q, store_q
 from .irq import (
-    COUNTER_MASK, FTAB_DISABLED, MOTION_BLOCKED, QUEUE_SLOTS, SLOT, SLOT_FLAGS, SLOT_HALTS, SLOT_STOPS,
+    COUNTER_MASK, FTAB_DISABLED, FTAB_HALTS, MOTION_BLOCKED, QUEUE_SLOTS, SLOT, SLOT_FLAGS, SLOT_HALTS,
+    SLOT_STOPS,
 )
 from .protocol import (
     ANGLEMOVED, BY_ADDR, FLAG_BUSY, FLAG_NOTENABLED, GETDRIVERRPM, GETENCODERRPM, GETPIDERROR,
@@ -160,6 +161,7 @@ class MainLoop:
             return False
         self.flags |= flag
         self.halts = (self.halts + 1) & 0xFF
+        self._ftab[FTAB_HALTS] = self.halts  # what the IRQ's judge reads
         self._irq_on(state)
         self.qd_set = 0
         self.positioning = False
