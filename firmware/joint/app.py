@@ -18,6 +18,8 @@ from .v2 import ProtocolSwitch
 # addressed to the target is in progress. The v2 swap waits for it to clear.
 _RP2040_IC_STATUS = (0x40044070, 0x40048070)
 _SLV_ACTIVITY = 0x40
+# The I2C0/I2C1 blocks: the legacy adapter sets the RX FIFO threshold and the RX_DONE mask there.
+_RP2040_I2C = (0x40044000, 0x40048000)
 _SLOW_EVERY_MASK = 3  # the console and the legacy protocol switch: every 4th main-loop iteration
 
 
@@ -68,12 +70,17 @@ def _drop_boot_only():
             delattr(sys.modules[parent], leaf)
 
 
+def _on_rp2040(machine):
+    import sys
+    return (sys.platform == "rp2" and getattr(machine, "mem32", None) is not None
+            and "RP2040" in getattr(sys.implementation, "_machine", ""))
+
+
 def bus_activity_probe(machine, bus):
     """A callable that is true while a transaction is in progress on target `bus`: the RP2040's
     activity bit; elsewhere none (always false: a torn state block is then caught by its CRC)."""
-    import sys
     mem32 = getattr(machine, "mem32", None)
-    if sys.platform == "rp2" and mem32 is not None and "RP2040" in getattr(sys.implementation, "_machine", ""):
+    if _on_rp2040(machine):
         status = _RP2040_IC_STATUS[bus]
 
         def active():
@@ -100,9 +107,10 @@ def join_bus(machine, core, cfg, log):
         return machine.I2CTarget(i2c.bus, cfg.address, mem=mem, mem_addrsize=MEM_ADDRSIZE, **pins)
 
     probe = bus_activity_probe(machine, i2c.bus)
+    block = _RP2040_I2C[i2c.bus] if _on_rp2040(machine) else 0
 
     def legacy_adapter(target):
-        return I2CTargetAdapter(core, target, i2c.whole_reply_writes, probe)
+        return I2CTargetAdapter(core, target, i2c.whole_reply_writes, probe, block)
 
     try:
         return ProtocolSwitch(core, cfg.address, make_target, legacy_adapter,

@@ -16,7 +16,7 @@ import struct
 
 from .fixed import STEPS_Q, to_q
 from .handlers import Handlers
-from .irq import COUNTER_MASK, QUEUE_SLOTS, SLOT, IrqPath
+from .irq import COUNTER_MASK, IrqPath
 from .loop import MainLoop
 from .protocol import (
     ACK, CHECKORIENTATION, CLEARSTALL, DISABLECLOSEDLOOP, DISABLESTALLGUARD,
@@ -98,7 +98,6 @@ class JointController(IrqPath, MainLoop, Handlers, Tasks, Supervisor):
                          FIRMWARE_VERSION[1], FIRMWARE_VERSION[2], cfg.joint_id, SPEC_HASH)
         # IRQ-side state: the reply the next read gets, the command queue, counters.
         self._init_irq_tables()
-        self._queue = bytearray(QUEUE_SLOTS * SLOT)
         self._q_in = 0  # written by the IRQ path only
         self._q_out = 0  # written by the main loop only
         self._blocking_in = 0  # blocking commands accepted (IRQ) ...

@@ -55,13 +55,14 @@ _FLAG_NOTENABLED = const(0x08)
 _HOMEOFFSET = const(0x2E)
 _STOP = const(0x29)
 _SETRPM = const(0x11)
+_FLAG_ERROR = const(0x10)
 if ((_R_NONE, _R_UNKNOWN_REGISTER, _R_LENGTH, _R_VALUE, _R_BUSY, _R_QUEUE_FULL, _R_DISABLED,
      _R_NOT_ENABLED, _R_STALLED, _R_HOMING_SENSITIVITY, _FLAG_STALL, _FLAG_NOTENABLED, _HOMEOFFSET,
-     _STOP, _SETRPM, SLOT_FLAGS, SLOT)
+     _STOP, _SETRPM, SLOT_FLAGS, SLOT, _FLAG_ERROR)
         != (REJECT_NONE, REJECT_UNKNOWN_REGISTER, REJECT_LENGTH, REJECT_VALUE, REJECT_BUSY,
             REJECT_QUEUE_FULL, REJECT_DISABLED, REJECT_NOT_ENABLED, REJECT_STALLED,
             REJECT_HOMING_SENSITIVITY, FLAG_STALL, FLAG_NOTENABLED, HOMEOFFSET, STOP, SETRPM,
-            MAX_FRAME, MAX_FRAME + 3)):
+            MAX_FRAME, MAX_FRAME + 3, FLAG_ERROR)):
     raise ImportError("irq.py constants differ from protocol.py")
 
 # The frame table (`_ftab`, one bytearray so viper code reaches it through one pointer): by register
@@ -83,7 +84,14 @@ _LO = const(512)  # CHECK_BYTES: payload byte i within [_LO, _HI] at addr*4 + i
 _HI = const(768)
 _LIMITS = const(1024)  # CHECK_F32: the |value| limits as 16-bit halves (low high16, low low16,
 #                        high high16, high low16), little-endian, at addr*8; CHECK_U16: low, high
-_FTAB_SIZE = const(1536)
+# State bytes mirrored from the core's attributes where they are written (a byte here costs the
+# viper code no lookup): 1 if the joint is disabled; the stop and halt epochs.
+_DISABLED = const(1536)
+_STOPS = const(1537)
+_HALTS = const(1538)
+FTAB_DISABLED = const(1536)  # for loop.py
+FTAB_HALTS = const(1538)
+_FTAB_SIZE = const(1539)
 _MOTION = const(1)  # refused while stalled or not enabled (SETRPM: unless 0 rpm)
 _HOMING = const(2)  # refused at or below the homing sensitivity noise floor
 
@@ -153,52 +161,21 @@ def frame_table():
     return t
 
 
-class IrqPath:
-    """JointController's IRQ-side methods (mixed into it): no allocation anywhere here.
-
-    A read is served from `_reply_wire`, the selected register's wire buffer (the flags go in its
-    last byte, the only one of a flags-only reply), selected once when the register is written.
-    """
-
-    def _init_irq_tables(self):
-        """Wire buffers for the reply caches and the per-register frame tables, from the spec."""
-        self._wires = [None] * _REGISTERS
-        for addr in range(len(self._cache)):
-            cache = self._cache[addr]
-            if cache is not None:
-                n = len(cache)
-                wire = bytearray(n + 1)
-                wire[:n] = cache
-                view = memoryview(wire)
-                self._cache[addr] = view[:n]  # the main loop packs here, as before
-                self._wires[addr] = view
-        self._flags_wire = memoryview(bytearray(1))
-        self._ftab = frame_table()
-        self._reply_wire = self._wires[PING]
-        self._reply_err = 0
-
-    def host_seen(self):
-        """A transaction addressed to this joint ended (feeds the deadman)."""
-        self.host_us = self._ticks_us()  # when: the deadman counts from here, not from the loop
-        self.transactions = (self.transactions + 1) & COUNTER_MASK
+def _judge_for(core, ftab, queue_buf):
+    """`core.judge`: a viper closure (its tables in cells, not looked up per call)."""
 
     @micropython.viper
-    def on_frame(self, frame, n: int):
-        """A write of n bytes (register + payload) ended. `frame` holds at most MAX_FRAME bytes."""
-        if n == 0:
-            return  # address probe (bus scan)
+    def judge(frame, n: int) -> int:
+        """A command frame of n >= 1 bytes that is no register selection (on_frame): validated,
+        its flag changes applied and queued, or rejected (LASTERROR). Returns the reject reason,
+        REJECT_NONE if accepted. The legacy IRQ adapter calls it directly and keeps the reply
+        selection itself."""
         f = ptr8(frame)
-        t = ptr8(self._ftab)
         addr = f[0]
         if addr >= _REGISTERS:
-            self._reject(addr, _R_UNKNOWN_REGISTER)
-            return
-        if n == 1:
-            wire = self._wires[addr]
-            if wire:
-                self._reply_wire = wire
-                self._reply_err = 0
-                return
+            core._reject(addr, _R_UNKNOWN_REGISTER)
+            return _R_UNKNOWN_REGISTER
+        t = ptr8(ftab)
         # The payload against the spec, as Register.check_write judges it.
         reason = t[_PRE + addr]
         if reason == _R_NONE and n != t[_WLEN + addr]:
@@ -235,22 +212,22 @@ class IrqPath:
                 if value < (t[o] | (t[o + 1] << 8)) or value > (t[o + 2] | (t[o + 3] << 8)):
                     reason = _R_VALUE
         # Then the joint's state.
-        flags = int(self.flags)
-        q_in = int(self._q_in)
+        flags = int(core.flags)
+        q_in = int(core._q_in)
         if reason == _R_NONE:
-            if self.disabled:
+            if t[_DISABLED]:
                 reason = _R_DISABLED
-            elif t[_BLOCKS + addr] and bool(self._blocking_live()):
+            elif t[_BLOCKS + addr] and bool(core._blocking_live()):
                 reason = _R_BUSY
             elif (addr != _HOMEOFFSET and addr != _STOP
-                  and ((q_in - int(self._q_out)) & COUNTER_MASK) >= QUEUE_SLOTS):
+                  and ((q_in - int(core._q_out)) & COUNTER_MASK) >= QUEUE_SLOTS):
                 reason = _R_QUEUE_FULL
             else:
                 # What the joint's state refuses: motion while stalled or not enabled (0 rpm
                 # always goes through), HOME at or below the sensitivity noise floor.
                 refuse = t[_REFUSE + addr]
                 if refuse == _HOMING:
-                    floor = int(self._homing_floor) + ((f[2] * int(self._homing_floor_q)) >> 10)
+                    floor = int(core._homing_floor) + ((f[2] * int(core._homing_floor_q)) >> 10)
                     if f[3] <= floor:
                         reason = _R_HOMING_SENSITIVITY
                 elif refuse == _MOTION:
@@ -260,43 +237,102 @@ class IrqPath:
                         elif flags & _FLAG_NOTENABLED:
                             reason = _R_NOT_ENABLED
         if reason != _R_NONE:
-            self._reject(addr, reason)
-            return
+            core._reject(addr, reason)
+            return reason
         clears = t[_CLEARS + addr]
+        before = flags
         flags = (flags | t[_SETS + addr]) & (0xFF ^ clears)
         if f[1] == 0:
             flags |= t[_ZERO_SETS + addr]
-        self.flags = flags
+        if flags != before:  # (a store costs an attribute lookup: most commands change nothing)
+            core.flags = flags
         if clears & _FLAG_STALL:
-            self.stall_rearms = (int(self.stall_rearms) + 1) & 0xFF
+            core.stall_rearms = (int(core.stall_rearms) + 1) & 0xFF
         if addr == _STOP:
             # Immediate, as in the original's ISR: cancels the running blocking command and any
             # motion still queued; the main loop commands 0 RPM next.
-            self.stops = (int(self.stops) + 1) & 0xFF
-            self.halts = (int(self.halts) + 1) & 0xFF
+            stops = (t[_STOPS] + 1) & 0xFF
+            halts = (t[_HALTS] + 1) & 0xFF
+            t[_STOPS] = stops
+            t[_HALTS] = halts
+            core.stops = stops
+            core.halts = halts
         elif addr == _HOMEOFFSET:
-            cache = ptr8(self._cache[_HOMEOFFSET])
+            cache = ptr8(core._cache[_HOMEOFFSET])
             cache[0] = f[1]
             cache[1] = f[2]
             cache[2] = f[3]
             cache[3] = f[4]
         else:
             base = (q_in & (QUEUE_SLOTS - 1)) * SLOT
-            queue = ptr8(self._queue)
+            queue = ptr8(queue_buf)
             i = 0
             while i < n:
                 queue[base + i] = f[i]
                 i += 1
-            stops = int(self.stops)
+            stops = t[_STOPS]
             queue[base + SLOT_FLAGS] = flags
-            queue[base + SLOT_HALTS] = int(self.halts)
+            queue[base + SLOT_HALTS] = t[_HALTS]
             queue[base + SLOT_STOPS] = stops
             if t[_BLOCKS + addr]:
-                self._blocking_stops = stops
-                self._blocking_in = (int(self._blocking_in) + 1) & COUNTER_MASK
-            self._q_in = (q_in + 1) & COUNTER_MASK
-        self._reply_wire = self._flags_wire
+                core._blocking_stops = stops
+                core._blocking_in = (int(core._blocking_in) + 1) & COUNTER_MASK
+            core._q_in = (q_in + 1) & COUNTER_MASK
+        return _R_NONE
+
+    return judge
+
+
+class IrqPath:
+    """JointController's IRQ-side methods (mixed into it): no allocation anywhere here.
+
+    A read is served from `_reply_wire`, the selected register's wire buffer (the flags go in its
+    last byte, the only one of a flags-only reply), selected once when the register is written.
+    """
+
+    def _init_irq_tables(self):
+        """Wire buffers for the reply caches and the per-register frame tables, from the spec."""
+        self._wires = [None] * _REGISTERS
+        for addr in range(len(self._cache)):
+            cache = self._cache[addr]
+            if cache is not None:
+                n = len(cache)
+                wire = bytearray(n + 1)
+                wire[:n] = cache
+                view = memoryview(wire)
+                self._cache[addr] = view[:n]  # the main loop packs here, as before
+                self._wires[addr] = view
+        self._flags_wire = memoryview(bytearray(1))
+        self._ftab = frame_table()
+        self._ftab[FTAB_DISABLED] = 1 if self.disabled else 0
+        self._queue = bytearray(QUEUE_SLOTS * SLOT)
+        self.judge = _judge_for(self, self._ftab, self._queue)
+        self._reply_wire = self._wires[PING]
         self._reply_err = 0
+
+    def host_seen(self):
+        """A transaction addressed to this joint ended (feeds the deadman)."""
+        self.host_us = self._ticks_us()  # when: the deadman counts from here, not from the loop
+        self.transactions = (self.transactions + 1) & COUNTER_MASK
+
+    @micropython.viper
+    def on_frame(self, frame, n: int):
+        """A write of n bytes (register + payload) ended. `frame` holds at most MAX_FRAME bytes.
+        Selects the reply the next read gets: the register's (n == 1, a readable register), else
+        the flags, with ERROR if the frame was rejected."""
+        if n == 0:
+            return  # address probe (bus scan)
+        addr = ptr8(frame)[0]
+        if n == 1 and addr < _REGISTERS:
+            wire = self._wires[addr]
+            if wire:
+                self._reply_wire = wire
+                self._reply_err = 0
+                return
+        judge = self.judge
+        reason = int(judge(frame, n))
+        self._reply_wire = self._flags_wire
+        self._reply_err = _FLAG_ERROR if reason else 0
 
     def _blocking_live(self):
         """A blocking command is queued or running and no STOP has cancelled it."""
@@ -305,8 +341,6 @@ class IrqPath:
         return self._task is not None and self._task_stops == self.stops
 
     def _reject(self, addr, reason):
-        self._reply_wire = self._flags_wire
-        self._reply_err = FLAG_ERROR
         self.rejects = (self.rejects + 1) & 0xFFFF
         cache = self._cache[LASTERROR]
         cache[0] = reason

@@ -9,7 +9,10 @@ reads are wrapped in `critical` sections, except the float caches: one 32-bit st
 from .emitters import micropython
 
 from .fixed import ANGLE_Q, RPM_Q, store_q
-from .irq import COUNTER_MASK, MOTION_BLOCKED, QUEUE_SLOTS, SLOT, SLOT_FLAGS, SLOT_HALTS, SLOT_STOPS
+from .irq import (
+    COUNTER_MASK, FTAB_DISABLED, FTAB_HALTS, MOTION_BLOCKED, QUEUE_SLOTS, SLOT, SLOT_FLAGS, SLOT_HALTS,
+    SLOT_STOPS,
+)
 from .protocol import (
     ANGLEMOVED, FLAG_BUSY, FLAG_NOTENABLED, GETDRIVERRPM, GETENCODERRPM, GETPIDERROR, LASTERROR,
 )
@@ -94,6 +97,7 @@ class MainLoop:
     def _motor_fault(self, exc):
         """The motor backend failed (driver or encoder unreachable): disable the joint for good."""
         self.disabled = True
+        self._ftab[FTAB_DISABLED] = 1  # what the IRQ's judge reads
         self._task = None
         self.task_name = None
         state = self._irq_off()
@@ -157,6 +161,7 @@ class MainLoop:
             return False
         self.flags |= flag
         self.halts = (self.halts + 1) & 0xFF
+        self._ftab[FTAB_HALTS] = self.halts  # what the IRQ's judge reads
         self._irq_on(state)
         self.qd_set = 0
         self.positioning = False

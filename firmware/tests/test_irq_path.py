@@ -179,7 +179,7 @@ def test_irq_counters_stay_small_ints_on_32_bit_ports():
     rig = Rig()
     rig.core.transactions = rig.core._q_in = rig.core._q_out = core.COUNTER_MASK
     rig.command("SETCURRENT", 30)
-    assert rig.core.transactions == 1 and rig.core._q_in == 0
+    assert rig.core.transactions == 0 and rig.core._q_in == 0, "one transaction, wrapped"
     rig.run_ms(1)
     assert ("set_current", 30) in rig.motor.calls and rig.core._q_out == 0
 

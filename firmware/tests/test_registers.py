@@ -237,6 +237,7 @@ def test_a_motor_backend_failure_disables_the_joint_instead_of_crashing():
     assert rig.core.flags & P.FLAG_NOTENABLED and not rig.core.flags & P.FLAG_BUSY
     assert any("motor fault" in line and "TMC2209" in line for line in rig.lines), rig.lines
     assert rig.command("SETUP", 20, 20, 0, 0) & P.FLAG_ERROR
+    assert rig.core.cached_reply(P.LASTERROR)[0] == P.REJECT_DISABLED
 
 
 def test_stop_during_check_orientation_ends_it_without_further_moves():

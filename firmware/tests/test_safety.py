@@ -279,3 +279,17 @@ def test_a_loaded_j2_does_not_fall_while_a_homing_starts():
     arm.command("HOME", 0, 45, 50, 30)
     arm.poll(0.4)  # within the homing's settle, before it drives
     assert abs(arm.stepper.load_angle() - before) < 5.0, arm.stepper.load_angle() - before
+
+
+def test_motion_commanded_after_a_deadman_stop_turns_the_joint_again():
+    # The stop invalidates the motion queued before it (the halt epoch), not what the host sends after.
+    rig = Rig()
+    rig.command("SETUP", 20, 20, 0, 0)
+    rig.command("SETRPM", 60.0)
+    rig.run_ms(300)  # the host falls silent: the deadman stops the joint
+    assert rig.core.flags & NOTENABLED and ("stop", False) in rig.motor.calls
+    rig.command("SETUP", 20, 20, 0, 0)
+    rig.motor.calls = []
+    rig.command("SETRPM", 30.0)
+    rig.run_ms(2)
+    assert any(c[0] == "set_rpm" and c[1] > 0 for c in rig.motor.calls), rig.motor.calls
