@@ -33,7 +33,8 @@ from ..tickramp import TickRamp, POSITIONING, VELOCITY_NEG, VELOCITY_POS, _run a
 from ..tickramp import S_MODE, S_V, S_VMAX, S_X
 from ..velocity import FixedVelocityEstimator, _update as _velocity_update
 from . import tmc2209 as tmc
-from .as5600 import AS5600, COUNTS_PER_REV, decode_status
+from .as5600 import AS5600, COUNTS_PER_REV, S_AT, S_COUNT, S_NEXT, decode_status
+from .as5600 import next_sample as _enc_next
 from .stepgen import SM_FREQ, StepGenerator, burst_program
 from .stepgen import _issue as _steps_issue, _poll as _steps_poll
 
@@ -51,6 +52,14 @@ _POWERDOWN_S = 0.524  # the TMC5130's reset TPOWERDOWN (20) at 10 MHz, kept for 
 _STEALTH_MAX = 2000.0  # usteps/s: the library's TPWMTHRS=5000 at 10 MHz
 _FS_Q4_CAP = 20000 * 16  # full steps/s(^2) in Q4 beyond every limit below: keeps products small
 _MAX_DT_TICKS = 4  # a late update advances the ramp by at most this many loop periods
+
+
+def i2c_registers(index):
+    """Address of the DW_apb_i2c block behind machine.I2C(index) (RP2040 or RP2350 datasheet)."""
+    import sys
+
+    base = 0x40090000 if "RP2350" in sys.implementation._machine else 0x40044000
+    return base + index * (0x8000 if base == 0x40090000 else 0x4000)
 
 
 class PicoStepper(MotorHAL):
@@ -78,6 +87,9 @@ class PicoStepper(MotorHAL):
         self._vs = self._vel.s
         self._ss = steps.s
         self._sm = steps._sm
+        self._es = encoder.s
+        self._enc_regs = encoder.regs
+        self._enc_buf = encoder.buf
         num, den = 3 * rate, 2560
         while den % 2 == 0 and num % 2 == 0:
             num //= 2
@@ -129,7 +141,7 @@ class PicoStepper(MotorHAL):
         sm = rp2.StateMachine(c["pio_sm"], burst_program(), freq=SM_FREQ,
                               sideset_base=Pin(c["step"]), out_base=Pin(c["dir"]))
         sm.active(1)
-        return cls(tmc.TMC2209(uart, c["tmc_address"]), AS5600(i2c),
+        return cls(tmc.TMC2209(uart, c["tmc_address"]), AS5600(i2c, regs=i2c_registers(c["encoder_i2c"])),
                    StepGenerator(sm, c["microsteps"], c["max_step_rate"]), enable, clock,
                    c["update_hz"], c["rsense_ohm"], c["full_scale_ma"],
                    c["encoder_slow_filter"], c["encoder_fast_threshold"])
@@ -217,19 +229,25 @@ class PicoStepper(MotorHAL):
         sm = self._sm
         _steps_poll(ss, sm)
         rs = self._rs
-        enc = self._enc
-        if enc.sample():
-            count = enc.count
+        es = self._es
+        # The encoder read queued at the last update, tagged with the driver and field positions
+        # of that instant (as5600.py); a blocking read when none is queued.
+        got = _enc_next(es, self._enc_regs, self._enc_buf, ss[0], ss[3])
+        if got < 0:
+            got = self._enc.sample(ss[0], ss[3])
+        if got:
+            count = es[S_COUNT]
             _velocity_update(self._vs, count)
             if self._closed_loop:
                 measured = (count * 25) >> 1 if count >= 0 else -((-count * 25) >> 1)
-                error = ss[0] - measured  # driver position
+                error = es[S_AT] - measured  # the driver position when the encoder was read
                 self._error = error
                 if error >= self._threshold or -error >= self._threshold:
-                    # _relabel(-error), inlined for the 1 kHz path
+                    # _relabel(-error), inlined for the 1 kHz path; the queued read's tag too
                     ss[0] -= error
                     ss[1] -= error
                     rs[S_X] -= error
+                    es[S_NEXT] -= error
         _ramp_run(rs, ticks)
         if self._stopping and rs[S_V] == 0:
             self._finish_stop()
@@ -240,6 +258,7 @@ class PicoStepper(MotorHAL):
         in positioning mode the ramp then makes up the difference toward the same target."""
         self._steps.shift(delta)
         self._ramp.x += delta  # keeps the sub-ustep fraction
+        self._es[S_NEXT] += delta  # the queued encoder read's driver position
 
     # ---- closed loop ----
 
@@ -383,7 +402,7 @@ class PicoStepper(MotorHAL):
 
     def angle_moved(self):
         """Encoder angle since home, degrees in Q12 (exact: 360 Q12 units a count)."""
-        count = self._enc.count
+        count = self._es[S_COUNT]
         return count * 360 if -2982616 < count < 2982616 else (LIMIT if count > 0 else -LIMIT)
 
     def encoder_rpm(self):
@@ -403,8 +422,10 @@ class PicoStepper(MotorHAL):
         return self._error
 
     def field_position(self):
-        """Usteps of pulses that reached the driver since construction, wrapping at 2**30."""
-        return self._steps.field
+        """Usteps of pulses that reached the driver since construction, wrapping at 2**30, when
+        the encoder's latest sample was read (with a queued read one period ago): the stall and
+        homing evidence compare the two at the same instant."""
+        return self._es[S_AT + 1]
 
     def position_reached(self):
         return not self._stopping and self._ramp.position_reached() and self._steps.idle()
