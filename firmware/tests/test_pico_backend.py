@@ -201,6 +201,30 @@ class FakeI2CRegisters:
         self.rx += [buf[0] | 0x400] + list(buf[1:])  # the emulator's FIRST_DATA_BYTE mark
 
 
+class FakePIORegisters:
+    """The FIFO registers of a PIO block (32-bit word indices) whose state machine `index` is a
+    FakeSM. CPython only, as FakeI2CRegisters."""
+
+    typecode = "I"
+
+    def __init__(self, sm, index):
+        self.sm = sm
+        self.index = index
+        self.words = 0  # words through TXF and RXF
+
+    def __getitem__(self, i):
+        if i == sg._FSTAT:
+            return 0 if self.sm.rx else 1 << (sg._RXEMPTY + self.index)
+        assert i == sg._RXF + self.index
+        self.words += 1
+        return self.sm.get()
+
+    def __setitem__(self, i, value):
+        assert i == sg._TXF + self.index
+        self.words += 1
+        self.sm.put(value)
+
+
 MICROPYTHON = sys.implementation.name == "micropython"
 
 
@@ -255,7 +279,8 @@ class Bench:
         self.rotor = 0.0  # usteps
         self.emitted = 0  # usteps of pulses the PIO sent
         self.offset = 1000  # raw angle at rotor 0: the magnet is not at the sensor's zero
-        self.steps = StepGenerator(self.sm, kw.pop("microsteps", 256))
+        pio = FakePIORegisters(self.sm, 2) if kw.pop("pio", False) else 0
+        self.steps = StepGenerator(self.sm, kw.pop("microsteps", 256), pio=pio, index=2)
         self.regs = FakeI2CRegisters(self.i2c) if kw.pop("queued", False) else 0
         self.motor = PicoStepper(TMC2209(self.uart), AS5600(self.i2c, regs=self.regs), self.steps, self.pin,
                                  self.clock, **kw)
@@ -880,6 +905,27 @@ def test_queued_encoder_reads_keep_the_pid_error_and_resync_of_blocking_reads():
     assert max(queued[300:400]) < 15 + 26 + 12.5 and min(queued[310:400]) > 0
     assert abs(pos1 - pos0) <= 26 and abs(deg1 - deg0) < 0.2  # one tick of lag at most
     assert abs(field1 - field0) <= 26
+
+
+def test_step_generator_on_the_pio_fifo_registers_moves_like_on_the_state_machine_methods():
+    if MICROPYTHON:
+        return  # see FakeI2CRegisters
+    runs = []
+    for pio in (False, True):
+        b = Bench(pio=pio).begin()
+        m = b.motor
+        m.move_steps(20000)
+        trace = []
+        for _ in range(200):
+            b.tick()
+            trace.append((m.driver_position(), m.field_position(), b.emitted))
+        m.set_rpm(-20 * RPM)
+        b.tick(300)
+        trace.append((m.driver_position(), m.field_position(), b.emitted, m.driver_rpm()))
+        runs.append(trace)
+        words = b.steps.pio.words if pio else 0
+    assert runs[0] == runs[1] and runs[0][-1][2] != 0
+    assert words > 400  # every burst went through the registers, out and back
 
 
 def test_closed_loop_off_freezes_the_error_and_lets_it_grow():

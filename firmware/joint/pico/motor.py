@@ -35,7 +35,7 @@ from ..velocity import FixedVelocityEstimator, _update as _velocity_update
 from . import tmc2209 as tmc
 from .as5600 import AS5600, COUNTS_PER_REV, S_AT, S_COUNT, S_NEXT, decode_status
 from .as5600 import next_sample as _enc_next
-from .stepgen import SM_FREQ, StepGenerator, burst_program
+from .stepgen import SM_FREQ, StepGenerator, burst_program, pio_registers
 from .stepgen import _issue as _steps_issue, _poll as _steps_poll
 
 
@@ -87,6 +87,7 @@ class PicoStepper(MotorHAL):
         self._vs = self._vel.s
         self._ss = steps.s
         self._sm = steps._sm
+        self._pio = steps.pio
         self._es = encoder.s
         self._enc_regs = encoder.regs
         self._enc_buf = encoder.buf
@@ -142,7 +143,8 @@ class PicoStepper(MotorHAL):
                               sideset_base=Pin(c["step"]), out_base=Pin(c["dir"]))
         sm.active(1)
         return cls(tmc.TMC2209(uart, c["tmc_address"]), AS5600(i2c, regs=i2c_registers(c["encoder_i2c"])),
-                   StepGenerator(sm, c["microsteps"], c["max_step_rate"]), enable, clock,
+                   StepGenerator(sm, c["microsteps"], c["max_step_rate"], SM_FREQ, *pio_registers(c["pio_sm"])),
+                   enable, clock,
                    c["update_hz"], c["rsense_ohm"], c["full_scale_ma"],
                    c["encoder_slow_filter"], c["encoder_fast_threshold"])
 
@@ -227,7 +229,7 @@ class PicoStepper(MotorHAL):
             self._last_us += ticks * tick_us
         ss = self._ss
         sm = self._sm
-        _steps_poll(ss, sm)
+        _steps_poll(ss, sm, self._pio)
         rs = self._rs
         es = self._es
         # The encoder read queued at the last update, tagged with the driver and field positions
@@ -251,7 +253,7 @@ class PicoStepper(MotorHAL):
         _ramp_run(rs, ticks)
         if self._stopping and rs[S_V] == 0:
             self._finish_stop()
-        _steps_issue(ss, sm, rs[S_X], ticks * tick_us)
+        _steps_issue(ss, sm, self._pio, rs[S_X], ticks * tick_us)
 
     def _relabel(self, delta):
         """Shift the driver frame by `delta` usteps without moving the motor (an XACTUAL write):
