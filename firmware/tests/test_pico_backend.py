@@ -884,6 +884,17 @@ def test_pid_error_sign_and_bounded_resync_on_a_blocked_rotor():
     assert m.pid_error() < 0  # moving in -: the sign follows the motion
 
 
+def test_the_closed_loop_reads_the_state_words_where_encoder_and_ramp_keep_them():
+    if MICROPYTHON:
+        return  # const() names with a leading underscore are no module attributes there
+    from joint.pico import motor
+    from joint import tickramp
+    assert (motor._ES_COUNT, motor._ES_AT, motor._ES_NEXT, motor._RS_X) == (
+        enc.S_COUNT, enc.S_AT, enc.S_NEXT, tickramp.S_X)
+    assert (motor._RS_MODE, motor._RS_VMAX, motor._VELOCITY_POS, motor._VELOCITY_NEG) == (
+        tickramp.S_MODE, tickramp.S_VMAX, tickramp.VELOCITY_POS, tickramp.VELOCITY_NEG)
+
+
 def test_queued_encoder_reads_keep_the_pid_error_and_resync_of_blocking_reads():
     if MICROPYTHON:
         return  # see FakeI2CRegisters
