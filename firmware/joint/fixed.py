@@ -26,7 +26,6 @@ STEPS_Q = const(4)
 LIMIT = const(0x3FFFFFFF)  # the largest small int on 32-bit ports
 
 
-@micropython.native
 def muldiv(a, num, den):
     """floor(a * num / den) for a >= 0 and num * den < 2**30, without a long intermediate."""
     q = a // den

@@ -91,6 +91,10 @@ S_ERRORS = const(2)
 S_QUEUED = const(3)
 S_AT = const(4)  # 2 words: the caller's tags of the sample last taken
 S_NEXT = const(6)  # 2 words: the caller's tags of the read queued
+_QUEUED = const(1)  # s[S_QUEUED]: what next_sample finds
+_DROP = const(2)
+_FRESH = const(3)
+_FRESH_QUEUE = const(4)
 
 
 class AS5600:
@@ -105,7 +109,7 @@ class AS5600:
     raw = state_word(S_RAW)
     count = state_word(S_COUNT)
     errors = state_word(S_ERRORS)
-    queued = state_word(S_QUEUED)  # a read of RAW ANGLE waits in the controller
+    queued = state_word(S_QUEUED)  # 1: a read of RAW ANGLE waits in the controller
 
     def __init__(self, i2c, address=ADDRESS, regs=0):
         self._i2c = i2c
@@ -132,9 +136,10 @@ class AS5600:
     def _settle(self):
         """Let a queued read finish before machine.I2C touches the controller (its angle is
         dropped); the device's pointer will move."""
-        if self.queued:
-            self.queued = 0
-            _collect(self.regs, self.buf, _SPINS)
+        s = self.s
+        if s[S_QUEUED]:
+            s[S_QUEUED] = _DROP
+            next_sample(s, self.regs, self.buf, 0, 0)
         self._at_raw = False
 
     def status(self):
@@ -177,13 +182,8 @@ class AS5600:
             self._at_raw = False
             s[S_ERRORS] += 1
             return False
-        _unwrap(s, buf)
-        s[S_AT] = s[S_NEXT] = tag0
-        s[S_AT + 1] = s[S_NEXT + 1] = tag1
-        if self.regs:
-            _queue(self.regs)
-            s[S_QUEUED] = 1
-        return True
+        s[S_QUEUED] = _FRESH_QUEUE if self.regs else _FRESH
+        return next_sample(s, self.regs, self.buf, tag0, tag1) == 1
 
     def usteps(self):
         return counts_to_usteps(self.count)
@@ -193,70 +193,51 @@ class AS5600:
 
 
 @micropython.viper
-def _collect(regs: ptr32, buf: ptr8, spins: int) -> int:
-    """The 2-byte read queued in the controller at `regs`: 2 with its bytes in `buf`, 0 when it
-    was aborted (NACK: the abort is cleared, the RX FIFO emptied), -1 when it has not finished
-    after `spins` polls."""
-    while regs[_RXFLR] < 2:
-        if regs[_RAW_INTR_STAT] & _TX_ABRT:
-            spins = regs[_TX_ABRT_SOURCE]  # read before the clear, as the pico-sdk does
-            spins = regs[_CLR_TX_ABRT]
-            while regs[_RXFLR] > 0:
-                spins = regs[_DATA_CMD]
+def next_sample(s: ptr32, regs, buf: ptr8, tag0: int, tag1: int) -> int:
+    """The 1 kHz sample, by s[S_QUEUED]: 0, no read queued: -1 (call AS5600.sample()); _QUEUED:
+    the queued read's angle goes into s, its tags to s[S_AT], and the next read is queued with
+    (tag0, tag1): 1, or 0 when the read failed (counted; nothing queued then). _DROP: wait for the
+    queued read, keep nothing. _FRESH (_FRESH_QUEUE): a blocking read's bytes are in `buf`: taken
+    with (tag0, tag1) (and the next read queued with them). One function, the register accesses
+    inline: a call from viper costs ~6 us on the chip, and code costs heap."""
+    mode = s[S_QUEUED]
+    if mode == 0:
+        return -1
+    if mode == _QUEUED or mode == _DROP:
+        r = ptr32(regs)
+        spins = _SPINS
+        while r[_RXFLR] < 2:
+            spins -= 1
+            if spins <= 0 or r[_RAW_INTR_STAT] & _TX_ABRT:
+                spins = r[_TX_ABRT_SOURCE]  # read before the clear, as the pico-sdk does
+                spins = r[_CLR_TX_ABRT]
+                while r[_RXFLR] > 0:
+                    spins = r[_DATA_CMD]
+                s[S_QUEUED] = 0
+                if mode == _QUEUED:
+                    s[S_ERRORS] = s[S_ERRORS] + 1
+                return 0
+        buf[0] = r[_DATA_CMD] & 0xFF  # the emulator marks the first byte in bit 10
+        buf[1] = r[_DATA_CMD] & 0xFF
+        if mode == _DROP:
+            s[S_QUEUED] = 0
             return 0
-        spins -= 1
-        if spins <= 0:
-            return -1
-    buf[0] = regs[_DATA_CMD] & 0xFF  # the emulator marks the first byte in bit 10
-    buf[1] = regs[_DATA_CMD] & 0xFF
-    return 2
-
-
-@micropython.viper
-def _queue(regs: ptr32):
-    """Queue a 2-byte read (the address pointer stays at RAW ANGLE): START, address, 2 bytes, STOP."""
-    regs[_DATA_CMD] = _CMD_READ
-    regs[_DATA_CMD] = _CMD_READ | _CMD_STOP
-
-
-@micropython.viper
-def _unwrap(s: ptr32, buf: ptr8):
-    """The 12-bit angle in `buf` into s: raw, and the count moved the shorter way round."""
+        s[S_AT] = s[S_NEXT]
+        s[S_AT + 1] = s[S_NEXT + 1]
+    else:
+        s[S_AT] = tag0
+        s[S_AT + 1] = tag1
     raw = ((buf[0] & 0x0F) << 8) | buf[1]
     d = (raw - s[S_RAW]) & 0xFFF
     s[S_COUNT] = s[S_COUNT] + (d - COUNTS_PER_REV if d > _HALF else d)  # mod 2**32 on any port
     s[S_RAW] = raw
-
-
-@micropython.viper
-def next_sample(s: ptr32, regs, buf: ptr8, tag0: int, tag1: int) -> int:
-    """The 1 kHz sample: -1 when no read is queued (call AS5600.sample()); 1: the queued read's
-    angle is in s and the next read is queued, tagged (tag0, tag1), its own tags moved to s[S_AT];
-    0: the read failed (counted, nothing queued). _collect, _unwrap and _queue inlined: a call
-    from viper costs ~10 us on the chip."""
-    if s[S_QUEUED] == 0:
-        return -1
+    if mode == _FRESH:
+        s[S_QUEUED] = 0
+        return 1
     r = ptr32(regs)
-    spins = _SPINS
-    while r[_RXFLR] < 2:
-        spins -= 1
-        if spins <= 0 or r[_RAW_INTR_STAT] & _TX_ABRT:
-            spins = r[_TX_ABRT_SOURCE]
-            spins = r[_CLR_TX_ABRT]
-            while r[_RXFLR] > 0:
-                spins = r[_DATA_CMD]
-            s[S_QUEUED] = 0
-            s[S_ERRORS] = s[S_ERRORS] + 1
-            return 0
-    high = r[_DATA_CMD] & 0x0F
-    raw = (high << 8) | (r[_DATA_CMD] & 0xFF)
-    r[_DATA_CMD] = _CMD_READ
+    r[_DATA_CMD] = _CMD_READ  # the next read: START, address, 2 bytes, STOP
     r[_DATA_CMD] = _CMD_READ | _CMD_STOP
-    d = (raw - s[S_RAW]) & 0xFFF
-    s[S_COUNT] = s[S_COUNT] + (d - COUNTS_PER_REV if d > _HALF else d)
-    s[S_RAW] = raw
-    s[S_AT] = s[S_NEXT]
-    s[S_AT + 1] = s[S_NEXT + 1]
     s[S_NEXT] = tag0
     s[S_NEXT + 1] = tag1
+    s[S_QUEUED] = _QUEUED
     return 1
