@@ -37,7 +37,7 @@ TARGETS = [
     ("joint.pico.motor", "PicoStepper", "angle_moved", 0),
     ("joint.pico.motor", "PicoStepper", "field_position", 0),
     ("joint.pico.motor", "PicoStepper", "position_reached", 0),
-    ("joint.pico.as5600", "AS5600", "sample", 0),
+    ("joint.pico.as5600", "AS5600", "sample", 2),
     ("joint.tracking", "TrackingDetector", "update", 2),
     ("joint.v2", "ProtocolSwitch", "service", 0),
     ("joint.debug", "DebugConsole", "poll", 0),

@@ -7,6 +7,7 @@ streaming SETRPM or MOVETOANGLE at its cycle rate creates no float on the board.
 
 import struct
 
+from .emitters import micropython
 from .fixed import ANGLE_Q, RPM_Q, STEPS_Q, f32_to_q, i32, muldiv
 from .protocol import WATCHDOG
 
@@ -32,6 +33,7 @@ class Handlers:
         self._safe_pending = False
         self.track.reset()
 
+    @micropython.native
     def _set_rpm(self, q, off):
         rpm = f32_to_q(q, off, RPM_Q)
         self.qd_set = rpm

@@ -128,6 +128,7 @@ class MainLoop:
         self.flags &= ~mask
         self._irq_on(state)
 
+    @micropython.native
     def _apply_next(self):
         base = (self._q_out % QUEUE_SLOTS) * SLOT
         queue = self._queue

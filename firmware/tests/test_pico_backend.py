@@ -149,6 +149,85 @@ class FakeAS5600Bus:
             self.conf[0], self.conf[1] = buf[0], buf[1]
 
 
+class FakeI2CRegisters:
+    """The DW_apb_i2c registers (32-bit word indices) in controller mode in front of a
+    FakeAS5600Bus, for the queued reads: a read queued with STOP happens at once (pointer-less, as
+    on the wire), or with `hold` stays on the wire until finish(). A failing bus aborts it (NACK).
+    CPython only: viper takes an address or a buffer, not this object, under MicroPython."""
+
+    typecode = "I"  # emitters.ptr32 passes it through
+
+    def __init__(self, bus):
+        self.bus = bus
+        self.rx = []
+        self.cmds = []
+        self.aborted = 0  # TX_ABRT_SOURCE
+        self.hold = False
+        self.queued = 0  # reads queued
+
+    def __getitem__(self, i):
+        if i == enc._RXFLR:
+            return len(self.rx)
+        if i == enc._DATA_CMD:
+            return self.rx.pop(0)
+        if i == enc._RAW_INTR_STAT:
+            return enc._TX_ABRT if self.aborted else 0
+        if i == enc._TX_ABRT_SOURCE:
+            return self.aborted
+        if i == enc._CLR_TX_ABRT:
+            self.aborted = 0
+            return 1
+        raise AssertionError("register word %d" % i)
+
+    def __setitem__(self, i, value):
+        assert i == enc._DATA_CMD and value & enc._CMD_READ
+        assert not self.aborted, "TX FIFO held flushed until the abort is cleared"
+        self.cmds.append(value)
+        if value & enc._CMD_STOP:
+            self.queued += 1
+            if not self.hold:
+                self.finish()
+
+    def finish(self):
+        if not self.cmds:
+            return
+        n = len(self.cmds)
+        self.cmds = []
+        if self.bus.fail:
+            self.aborted = 1  # ABRT_7B_ADDR_NOACK
+            return
+        buf = bytearray(n)
+        self.bus.readfrom_into(0x36, buf)
+        self.rx += [buf[0] | 0x400] + list(buf[1:])  # the emulator's FIRST_DATA_BYTE mark
+
+
+class FakePIORegisters:
+    """The FIFO registers of a PIO block (32-bit word indices) whose state machine `index` is a
+    FakeSM. CPython only, as FakeI2CRegisters."""
+
+    typecode = "I"
+
+    def __init__(self, sm, index):
+        self.sm = sm
+        self.index = index
+        self.words = 0  # words through TXF and RXF
+
+    def __getitem__(self, i):
+        if i == sg._FSTAT:
+            return 0 if self.sm.rx else 1 << (sg._RXEMPTY + self.index)
+        assert i == sg._RXF + self.index
+        self.words += 1
+        return self.sm.get()
+
+    def __setitem__(self, i, value):
+        assert i == sg._TXF + self.index
+        self.words += 1
+        self.sm.put(value)
+
+
+MICROPYTHON = sys.implementation.name == "micropython"
+
+
 class FakeSM:
     """rp2.StateMachine: words wait in `tx` until finish() acknowledges them like the PIO does."""
 
@@ -200,8 +279,10 @@ class Bench:
         self.rotor = 0.0  # usteps
         self.emitted = 0  # usteps of pulses the PIO sent
         self.offset = 1000  # raw angle at rotor 0: the magnet is not at the sensor's zero
-        self.steps = StepGenerator(self.sm, kw.pop("microsteps", 256))
-        self.motor = PicoStepper(TMC2209(self.uart), AS5600(self.i2c), self.steps, self.pin,
+        pio = FakePIORegisters(self.sm, 2) if kw.pop("pio", False) else 0
+        self.steps = StepGenerator(self.sm, kw.pop("microsteps", 256), pio=pio, index=2)
+        self.regs = FakeI2CRegisters(self.i2c) if kw.pop("queued", False) else 0
+        self.motor = PicoStepper(TMC2209(self.uart), AS5600(self.i2c, regs=self.regs), self.steps, self.pin,
                                  self.clock, **kw)
         self._shaft = False
         self._encode()
@@ -444,6 +525,55 @@ def test_as5600_samples_without_rewriting_its_pointer_until_another_register_is_
     bus.fail = False
     bus.raw = 140
     assert sensor.sample() and sensor.count == 40 and writes[-1] == enc.RAW_ANGLE
+
+
+def test_as5600_queued_reads_return_the_angle_of_the_previous_sample_with_its_tags():
+    if MICROPYTHON:
+        return  # the register fake is a Python object (see FakeI2CRegisters); the chip suite runs it
+    bus = FakeAS5600Bus()
+    regs = FakeI2CRegisters(bus)
+    sensor = AS5600(bus, regs=regs)
+    bus.raw = 100
+    sensor.start()
+    assert sensor.sample(7, 70) and sensor.count == 0  # blocking (nothing queued), then one queued
+    assert (sensor.queued, regs.queued, list(sensor.s[enc.S_AT:enc.S_AT + 2])) == (1, 1, [7, 70])
+    reads = bus.reads
+    tags = [7, 70]
+    for i, raw in enumerate((4090, 5, 20)):
+        bus.raw = raw  # moves after the queued read: it shows at the sample after next
+        assert sensor.sample(8 + i, 80 + i)
+        assert list(sensor.s[enc.S_AT:enc.S_AT + 2]) == tags  # the read's own tags
+        tags = [8 + i, 80 + i]
+    assert sensor.count == -106 + 11 and sensor.raw == 5  # 100 -> 4090 -> 5: the short way round
+    assert bus.reads == reads + 3 and regs.queued == 4  # no blocking read since
+
+
+def test_as5600_queued_read_failures_drop_the_sample_and_fall_back_to_a_blocking_read():
+    if MICROPYTHON:
+        return  # see FakeI2CRegisters
+    bus = FakeAS5600Bus()
+    regs = FakeI2CRegisters(bus)
+    sensor = AS5600(bus, regs=regs)
+    bus.raw = 100
+    sensor.start()
+    sensor.sample()
+    bus.fail = True
+    sensor.sample()  # queued the read that NACKs
+    assert not sensor.sample() and sensor.errors == 1 and not sensor.queued and not regs.aborted
+    bus.fail = False
+    bus.raw = 140
+    assert sensor.sample() and sensor.count == 40 and sensor.queued  # blocking, then queued again
+    regs.hold = True  # a read that never leaves the wire: given up after the spins, counted
+    sensor.sample()
+    assert not sensor.sample() and sensor.errors == 2 and not sensor.queued
+    regs.hold = False
+    regs.cmds = []
+    bus.raw = 150
+    assert sensor.sample() and sensor.count == 50
+    assert sensor.status() == 0x20 and not sensor.queued  # machine.I2C waits for no queued read
+    assert regs.rx == [] and regs.cmds == []
+    bus.raw = 160
+    assert sensor.sample() and sensor.count == 60  # pointer set again by a blocking read
 
 
 def test_as5600_conf_register():
@@ -752,6 +882,61 @@ def test_pid_error_sign_and_bounded_resync_on_a_blocked_rotor():
     b.blocked = True
     b.tick(50)
     assert m.pid_error() < 0  # moving in -: the sign follows the motion
+
+
+def test_the_closed_loop_reads_the_state_words_where_encoder_and_ramp_keep_them():
+    if MICROPYTHON:
+        return  # const() names with a leading underscore are no module attributes there
+    from joint.pico import motor
+    from joint import tickramp
+    assert (motor._ES_COUNT, motor._ES_AT, motor._ES_NEXT, motor._RS_X) == (
+        enc.S_COUNT, enc.S_AT, enc.S_NEXT, tickramp.S_X)
+    assert (motor._RS_MODE, motor._RS_VMAX, motor._VELOCITY_POS, motor._VELOCITY_NEG) == (
+        tickramp.S_MODE, tickramp.S_VMAX, tickramp.VELOCITY_POS, tickramp.VELOCITY_NEG)
+
+
+def test_queued_encoder_reads_keep_the_pid_error_and_resync_of_blocking_reads():
+    if MICROPYTHON:
+        return  # see FakeI2CRegisters
+    runs = []
+    for queued in (False, True):
+        b = Bench(queued=queued).begin()
+        m = b.motor
+        m.enable_closed_loop()
+        m.set_control_threshold(15)
+        m.set_rpm(30 * RPM)
+        errors = []
+        for i in range(600):
+            b.blocked = 300 <= i < 400
+            b.tick()
+            errors.append(m.pid_error())
+        runs.append((errors, m.driver_position(), deg(m), m.field_position()))
+    (blocking, pos0, deg0, field0), (queued, pos1, deg1, field1) = runs
+    assert max(abs(e) for e in queued[:300]) < 15  # moving freely: no lag shows as error
+    assert max(queued[300:400]) < 15 + 26 + 12.5 and min(queued[310:400]) > 0
+    assert abs(pos1 - pos0) <= 26 and abs(deg1 - deg0) < 0.2  # one tick of lag at most
+    assert abs(field1 - field0) <= 26
+
+
+def test_step_generator_on_the_pio_fifo_registers_moves_like_on_the_state_machine_methods():
+    if MICROPYTHON:
+        return  # see FakeI2CRegisters
+    runs = []
+    for pio in (False, True):
+        b = Bench(pio=pio).begin()
+        m = b.motor
+        m.move_steps(20000)
+        trace = []
+        for _ in range(200):
+            b.tick()
+            trace.append((m.driver_position(), m.field_position(), b.emitted))
+        m.set_rpm(-20 * RPM)
+        b.tick(300)
+        trace.append((m.driver_position(), m.field_position(), b.emitted, m.driver_rpm()))
+        runs.append(trace)
+        words = b.steps.pio.words if pio else 0
+    assert runs[0] == runs[1] and runs[0][-1][2] != 0
+    assert words > 400  # every burst went through the registers, out and back
 
 
 def test_closed_loop_off_freezes_the_error_and_lets_it_grow():

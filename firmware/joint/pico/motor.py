@@ -24,17 +24,24 @@ Default wiring (motor_config.DEFAULT_PINS; the joint bus target is I2C0 on GP4 S
     TMC2209 MS1/MS2 set the UART node address (tmc_address); SPREAD tied low.
 """
 
-from ..emitters import micropython
+from ..emitters import micropython, ptr32
+
+try:
+    from micropython import const
+except ImportError:
+    def const(x):
+        return x
 
 from ..clock import MonotonicClock
 from ..fixed import LIMIT, muldiv
 from ..hal import MotorHAL
-from ..tickramp import TickRamp, POSITIONING, VELOCITY_NEG, VELOCITY_POS, _run as _ramp_run
-from ..tickramp import S_MODE, S_V, S_VMAX, S_X
+from ..tickramp import TickRamp, POSITIONING, VELOCITY_NEG, _run as _ramp_run
+from ..tickramp import S_V, S_X
 from ..velocity import FixedVelocityEstimator, _update as _velocity_update
 from . import tmc2209 as tmc
-from .as5600 import AS5600, COUNTS_PER_REV, decode_status
-from .stepgen import SM_FREQ, StepGenerator, burst_program
+from .as5600 import AS5600, COUNTS_PER_REV, S_AT, S_COUNT, S_NEXT, decode_status
+from .as5600 import next_sample as _enc_next
+from .stepgen import SM_FREQ, StepGenerator, burst_program, pio_registers
 from .stepgen import _issue as _steps_issue, _poll as _steps_poll
 
 
@@ -51,6 +58,65 @@ _POWERDOWN_S = 0.524  # the TMC5130's reset TPOWERDOWN (20) at 10 MHz, kept for 
 _STEALTH_MAX = 2000.0  # usteps/s: the library's TPWMTHRS=5000 at 10 MHz
 _FS_Q4_CAP = 20000 * 16  # full steps/s(^2) in Q4 beyond every limit below: keeps products small
 _MAX_DT_TICKS = 4  # a late update advances the ramp by at most this many loop periods
+
+
+# Words of the state arrays _resync works on (viper needs them as constants here): the encoder's
+# (as5600.S_COUNT, S_AT, S_NEXT) and the ramp's position (tickramp.S_X); test_pico_backend checks.
+_ES_COUNT = const(1)
+_ES_AT = const(4)
+_ES_NEXT = const(6)
+_RS_X = const(0)
+
+
+@micropython.viper
+def _resync(es: ptr32, ss: ptr32, rs: ptr32, threshold: int) -> int:
+    """The closed loop's tick: the PID error (usteps, the driver position when the encoder was
+    read minus the encoder's), and when |error| >= threshold the driver frame shifted onto the
+    encoder (_relabel(-error): step generator, ramp, and the queued read's tag). Words are read
+    sign-extended as in tickramp._run."""
+    m = 1
+    m <<= 31
+    k = m + m - 1
+    count = ((es[_ES_COUNT] + m) & k) - m
+    measured = (count * 25) >> 1 if count >= 0 else 0 - (((0 - count) * 25) >> 1)  # 12.5 a count
+    error = ((es[_ES_AT] + m) & k) - m - measured
+    if error >= threshold or 0 - error >= threshold:
+        ss[0] = ss[0] - error  # position and commanded: wrap-around arithmetic, any port
+        ss[1] = ss[1] - error
+        rs[_RS_X] = rs[_RS_X] - error
+        es[_ES_NEXT] = es[_ES_NEXT] - error
+    return error
+
+
+_RS_MODE = const(3)  # tickramp.S_MODE, S_VMAX, VELOCITY_POS, VELOCITY_NEG
+_RS_VMAX = const(5)
+_VELOCITY_POS = const(1)
+_VELOCITY_NEG = const(2)
+
+
+@micropython.viper
+def _velocity_mode(rs: ptr32, rpm: int, den: int, limit: int):
+    """Ramp words for velocity mode at `rpm` (Q16): VMAX = muldiv(|rpm|, 2560, den) in Q16
+    usteps/tick (den = 3 * rate: 51200 / 60 usteps/s per rpm), at most `limit`; the direction
+    from the sign (0 ramps down)."""
+    a = rpm if rpm >= 0 else 0 - rpm
+    q = a // den
+    if q > limit // 2560:
+        v = limit  # beyond the limit, and q * 2560 could overflow a word
+    else:
+        v = q * 2560 + (a - q * den) * 2560 // den
+        if v > limit:
+            v = limit
+    rs[_RS_VMAX] = v
+    rs[_RS_MODE] = _VELOCITY_POS if rpm > 0 else _VELOCITY_NEG
+
+
+def i2c_registers(index):
+    """Address of the DW_apb_i2c block behind machine.I2C(index) (RP2040 or RP2350 datasheet)."""
+    import sys
+
+    base = 0x40090000 if "RP2350" in sys.implementation._machine else 0x40044000
+    return base + index * (0x8000 if base == 0x40090000 else 0x4000)
 
 
 class PicoStepper(MotorHAL):
@@ -78,6 +144,11 @@ class PicoStepper(MotorHAL):
         self._vs = self._vel.s
         self._ss = steps.s
         self._sm = steps._sm
+        self._pio = steps.pio
+        self._es = encoder.s
+        # update()'s references, one tuple load instead of eight attribute loads (~2 us each)
+        self._hot = (self._ss, self._sm, self._pio, self._rs, self._es, encoder.regs, encoder.buf,
+                     self._vs)
         num, den = 3 * rate, 2560
         while den % 2 == 0 and num % 2 == 0:
             num //= 2
@@ -129,8 +200,9 @@ class PicoStepper(MotorHAL):
         sm = rp2.StateMachine(c["pio_sm"], burst_program(), freq=SM_FREQ,
                               sideset_base=Pin(c["step"]), out_base=Pin(c["dir"]))
         sm.active(1)
-        return cls(tmc.TMC2209(uart, c["tmc_address"]), AS5600(i2c),
-                   StepGenerator(sm, c["microsteps"], c["max_step_rate"]), enable, clock,
+        return cls(tmc.TMC2209(uart, c["tmc_address"]), AS5600(i2c, regs=i2c_registers(c["encoder_i2c"])),
+                   StepGenerator(sm, c["microsteps"], c["max_step_rate"], SM_FREQ, *pio_registers(c["pio_sm"])),
+                   enable, clock,
                    c["update_hz"], c["rsense_ohm"], c["full_scale_ma"],
                    c["encoder_slow_filter"], c["encoder_fast_threshold"])
 
@@ -213,33 +285,28 @@ class PicoStepper(MotorHAL):
             self._last_us = now
         else:
             self._last_us += ticks * tick_us
-        ss = self._ss
-        sm = self._sm
-        _steps_poll(ss, sm)
-        rs = self._rs
-        enc = self._enc
-        if enc.sample():
-            count = enc.count
-            _velocity_update(self._vs, count)
+        ss, sm, pio, rs, es, enc_regs, enc_buf, vs = self._hot
+        _steps_poll(ss, sm, pio)
+        # The encoder read queued at the last update, tagged with the driver and field positions
+        # of that instant (as5600.py); a blocking read when none is queued.
+        got = _enc_next(es, enc_regs, enc_buf, ss[0], ss[3])
+        if got < 0:
+            got = self._enc.sample(ss[0], ss[3])
+        if got:
+            _velocity_update(vs, es[S_COUNT])
             if self._closed_loop:
-                measured = (count * 25) >> 1 if count >= 0 else -((-count * 25) >> 1)
-                error = ss[0] - measured  # driver position
-                self._error = error
-                if error >= self._threshold or -error >= self._threshold:
-                    # _relabel(-error), inlined for the 1 kHz path
-                    ss[0] -= error
-                    ss[1] -= error
-                    rs[S_X] -= error
+                self._error = _resync(es, ss, rs, self._threshold)
         _ramp_run(rs, ticks)
         if self._stopping and rs[S_V] == 0:
             self._finish_stop()
-        _steps_issue(ss, sm, rs[S_X], ticks * tick_us)
+        _steps_issue(ss, sm, pio, rs[S_X], ticks * tick_us)
 
     def _relabel(self, delta):
         """Shift the driver frame by `delta` usteps without moving the motor (an XACTUAL write):
         in positioning mode the ramp then makes up the difference toward the same target."""
         self._steps.shift(delta)
         self._ramp.x += delta  # keeps the sub-ustep fraction
+        self._es[S_NEXT] += delta  # the queued encoder read's driver position
 
     # ---- closed loop ----
 
@@ -284,16 +351,14 @@ class PicoStepper(MotorHAL):
         if not self._stopping:
             self._ramp.dmax = self._dmax
 
+    @micropython.native
     def set_rpm(self, rpm):
         """Velocity mode: VMAX = |rpm| (Q16, fixed.RPM_Q), direction from the sign (0 ramps down)."""
         if self._stopping:  # a new command ends a stop (the library's stop() blocks instead)
             self._stopping = False
             self._ramp.amax = self._amax
             self._ramp.dmax = self._dmax
-        v = muldiv(rpm if rpm >= 0 else -rpm, 2560, 3 * self._rate)  # 51200 / 60 usteps/s per rpm
-        rs = self._rs  # the ramp's words: a host streams SETRPM at its cycle rate
-        rs[S_VMAX] = v if v < self._vmax_limit else self._vmax_limit
-        rs[S_MODE] = VELOCITY_POS if rpm > 0 else VELOCITY_NEG
+        _velocity_mode(self._rs, rpm, 3 * self._rate, self._vmax_limit)  # a host streams SETRPM
 
     def move_steps(self, usteps):
         """Positioning to the ramp position + usteps with the stored velocity and accelerations."""
@@ -383,7 +448,7 @@ class PicoStepper(MotorHAL):
 
     def angle_moved(self):
         """Encoder angle since home, degrees in Q12 (exact: 360 Q12 units a count)."""
-        count = self._enc.count
+        count = self._es[S_COUNT]
         return count * 360 if -2982616 < count < 2982616 else (LIMIT if count > 0 else -LIMIT)
 
     def encoder_rpm(self):
@@ -403,8 +468,10 @@ class PicoStepper(MotorHAL):
         return self._error
 
     def field_position(self):
-        """Usteps of pulses that reached the driver since construction, wrapping at 2**30."""
-        return self._steps.field
+        """Usteps of pulses that reached the driver since construction, wrapping at 2**30, when
+        the encoder's latest sample was read (with a queued read one period ago): the stall and
+        homing evidence compare the two at the same instant."""
+        return self._es[S_AT + 1]
 
     def position_reached(self):
         return not self._stopping and self._ramp.position_reached() and self._steps.idle()
