@@ -37,7 +37,7 @@ class Handlers:
     def _set_rpm(self, q, off):
         rpm = f32_to_q(q, off, RPM_Q)
         self.qd_set = rpm
-        if rpm == 0 or self._may_move():
+        if rpm == 0 or self._motion_allowed:  # _may_move(), inlined: a host streams SETRPM
             self.hal.set_rpm(rpm)
             self.positioning = False
 

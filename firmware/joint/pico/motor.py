@@ -136,6 +136,7 @@ class PicoStepper(MotorHAL):
         # in whole ticks of `_tick_us`, speeds in Q16 usteps per tick, accelerations per tick^2.
         rate = int(update_hz)
         self._rate = rate
+        self._vmax_den = 3 * rate  # set_rpm: 51200 / 60 usteps/s per rpm = 2560 / (3 * rate) per tick
         self._tick_us = 1000000 // rate
         self._ramp = TickRamp()
         self._vel = FixedVelocityEstimator(rate)
@@ -358,7 +359,7 @@ class PicoStepper(MotorHAL):
             self._stopping = False
             self._ramp.amax = self._amax
             self._ramp.dmax = self._dmax
-        _velocity_mode(self._rs, rpm, 3 * self._rate, self._vmax_limit)  # a host streams SETRPM
+        _velocity_mode(self._rs, rpm, self._vmax_den, self._vmax_limit)  # a host streams SETRPM
 
     def move_steps(self, usteps):
         """Positioning to the ramp position + usteps with the stored velocity and accelerations."""
