@@ -10,6 +10,7 @@ from .core import JointController
 from .debug import DebugConsole, UsbStdio
 from .i2c_target import I2CTargetAdapter
 from .log import Logger
+from .protocol_v2 import MEM_ADDRSIZE
 from .settings import CONFIG_FILE
 from .v2 import ProtocolSwitch
 
@@ -50,7 +51,7 @@ def build(machine, config_path=CONFIG_FILE, clock=None, write=None):
 # schema and checks, the Pico backend's defaults and validation, the register spec's objects
 # (about 27 KB of heap together). The running joint keeps what it needs of them in settings.py's
 # objects and regtable.RegisterTable.
-BOOT_ONLY = ("config", "core_init", "pico.motor_config", "protocol", "protocol_v2")
+BOOT_ONLY = ("config", "core_init", "pico.motor_config", "protocol")
 
 
 def _drop_boot_only():
@@ -103,7 +104,6 @@ def join_bus(machine, core, cfg, log):
         pins = {"scl": machine.Pin(i2c.scl), "sda": machine.Pin(i2c.sda)}
         if mem is None:
             return machine.I2CTarget(i2c.bus, cfg.address, **pins)
-        from .protocol_v2 import MEM_ADDRSIZE  # v2 only: memlink.py has loaded the v2 spec
         return machine.I2CTarget(i2c.bus, cfg.address, mem=mem, mem_addrsize=MEM_ADDRSIZE, **pins)
 
     probe = bus_activity_probe(machine, i2c.bus)

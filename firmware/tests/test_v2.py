@@ -5,14 +5,9 @@ import struct
 
 from joint import protocol as P, protocol_v2 as V
 from joint.sim.i2c_target import FakeI2CTarget, heap_lock, heap_unlock
-from joint import v2
-from joint.memlink import f32_to_fixed
+from joint.v2 import f32_to_fixed
 
 from v2rig import V2Rig
-
-
-def test_the_protocol_switch_knows_the_v2_spec_s_protocol_numbers_and_silence():
-    assert (v2.PROTOCOL_LEGACY, v2.PROTOCOL_V2, v2.SILENCE_MS) == (V.PROTOCOL_LEGACY, V.PROTOCOL_V2, V.SILENCE_MS)
 
 
 def _f32(value):
