@@ -51,7 +51,7 @@ def build(machine, config_path=CONFIG_FILE, clock=None, write=None):
 # schema and checks, the Pico backend's defaults and validation, the register spec's objects
 # (about 27 KB of heap together). The running joint keeps what it needs of them in settings.py's
 # objects and regtable.RegisterTable.
-BOOT_ONLY = ("config", "pico.motor_config", "protocol")
+BOOT_ONLY = ("config", "core_init", "pico.motor_config", "protocol")
 
 
 def _drop_boot_only():

@@ -55,3 +55,25 @@ def test_the_board_forgets_the_boot_only_modules_and_runs_without_them():
         assert kept == [], kept
     else:
         assert "config" in kept and "protocol" in kept, kept
+
+
+def test_an_idle_console_keeps_only_its_line_reader_and_the_first_line_loads_the_commands():
+    machine = Machine()
+    core, cfg, log, lines = _boot('{"joint": "J2", "address": 18}', machine)
+    keys = bytearray(b"help\n")
+    out = []
+
+    def read(buf):
+        n = len(keys) if typing[0] else 0
+        buf[:n] = keys[:n]
+        typing[0] = False
+        return n
+
+    typing = [False]
+    console = DebugConsole(core, read, out.append)
+    for _ in range(5):
+        console.poll()
+    assert console._commands is None and out == []
+    typing[0] = True
+    console.poll()
+    assert console._commands is not None and out[0].startswith("status"), out

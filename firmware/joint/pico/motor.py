@@ -32,28 +32,17 @@ except ImportError:
     def const(x):
         return x
 
-from ..clock import MonotonicClock
 from ..fixed import LIMIT, muldiv
 from ..hal import MotorHAL
-from ..tickramp import TickRamp, POSITIONING, VELOCITY_NEG, _run as _ramp_run
+from ..tickramp import POSITIONING, VELOCITY_NEG, _run as _ramp_run
 from ..tickramp import S_V, S_X
-from ..velocity import FixedVelocityEstimator, _update as _velocity_update
+from ..velocity import _update as _velocity_update
 from . import tmc2209 as tmc
-from .as5600 import AS5600, COUNTS_PER_REV, S_AT, S_COUNT, S_NEXT, decode_status
+from .as5600 import COUNTS_PER_REV, S_AT, S_COUNT, S_NEXT, decode_status
 from .as5600 import next_sample as _enc_next
-from .stepgen import SM_FREQ, StepGenerator, burst_program, pio_registers
 from .stepgen import _issue as _steps_issue, _poll as _steps_poll
 
 
-# In usteps/s and usteps/s^2 (converted to the ramp's per-tick Q16 units at construction):
-# the TMC5130's largest AMAX/DMAX (0xFFFE at 10 MHz), which the library clamps to and which its
-# HARD stop uses, about 11 641 full steps/s^2; its VMAX limit, about 19 538 full steps/s; the
-# library constructor's profile.
-_MAX_ACCEL = 65534 * 45.4747
-_LIB_MAX_VEL = 0x7FFE00 * 0.596046
-_DEFAULT_VEL = 100 * 256
-_DEFAULT_ACCEL = 2000 * 256
-_BOOT_PERCENT = 40  # setup() sets run and hold current to 40 % whatever it is passed
 _POWERDOWN_S = 0.524  # the TMC5130's reset TPOWERDOWN (20) at 10 MHz, kept for the same feel
 _STEALTH_MAX = 2000.0  # usteps/s: the library's TPWMTHRS=5000 at 10 MHz
 _FS_Q4_CAP = 20000 * 16  # full steps/s(^2) in Q4 beyond every limit below: keeps products small
@@ -124,88 +113,15 @@ class PicoStepper(MotorHAL):
 
     def __init__(self, driver, encoder, steps, enable=None, clock=None, update_hz=1000,
                  rsense_ohm=0.11, full_scale_ma=1500, encoder_slow_filter=3, encoder_fast_threshold=0):
-        self._drv = driver
-        self._enc = encoder
-        self._steps = steps
-        self._enable = enable
-        self._clock = clock or MonotonicClock()
-        self._microsteps = 256 // steps.upp
-        self._enc_conf = (encoder_slow_filter, encoder_fast_threshold)
-        self._vsense, self._cs_max = tmc.current_scale(rsense_ohm, full_scale_ma / 1000.0)
-        # The 1 kHz path is integers only (a float is a heap object on the board): the ramp runs
-        # in whole ticks of `_tick_us`, speeds in Q16 usteps per tick, accelerations per tick^2.
-        rate = int(update_hz)
-        self._rate = rate
-        self._vmax_den = 3 * rate  # set_rpm: 51200 / 60 usteps/s per rpm = 2560 / (3 * rate) per tick
-        self._tick_us = 1000000 // rate
-        self._ramp = TickRamp()
-        self._vel = FixedVelocityEstimator(rate)
-        # The 1 kHz path works on the state arrays themselves (ramp, estimator, pulse counters).
-        self._rs = self._ramp.s
-        self._vs = self._vel.s
-        self._ss = steps.s
-        self._sm = steps._sm
-        self._pio = steps.pio
-        self._es = encoder.s
-        # update()'s references, one tuple load instead of eight attribute loads (~2 us each)
-        self._hot = (self._ss, self._sm, self._pio, self._rs, self._es, encoder.regs, encoder.buf,
-                     self._vs)
-        num, den = 3 * rate, 2560
-        while den % 2 == 0 and num % 2 == 0:
-            num //= 2
-            den //= 2
-        while den % 5 == 0 and num % 5 == 0:
-            num //= 5
-            den //= 5
-        self._rpm_num, self._rpm_den = num, den  # ramp Q16 usteps/tick -> rpm Q16 = * num / den
-        self._per_tick = 65536 / rate  # usteps/s -> Q16 usteps/tick (configuration time only)
-        self._per_tick2 = 65536 / (rate * rate)
-        self._vmax_limit = self._v(min(_LIB_MAX_VEL, steps.max_usteps_per_s()))
-        self._max_accel = self._a(_MAX_ACCEL)
-        self._vmax = min(self._v(_DEFAULT_VEL), self._vmax_limit)
-        self._amax = self._a(_DEFAULT_ACCEL)
-        self._dmax = self._amax
-        self._threshold = 10
-        self._closed_loop = False
-        self._error = 0
-        self._stopping = False
-        self._irun = self._ihold = tmc.percent_to_cs(_BOOT_PERCENT, self._cs_max)
-        self._pwmconf = 0
-        self._ready = False
-        self._last_us = 0
-        self._ticks = self._clock.ticks_us
-        self._diff = self._clock.ticks_diff
-        self.fault = None  # last UART error after begin(), for diagnostics
-        self.faults = 0
+        from .motor_config import init_stepper  # boot only: app drops it after
+        init_stepper(self, driver, encoder, steps, enable, clock, update_hz, rsense_ohm, full_scale_ma,
+                     encoder_slow_filter, encoder_fast_threshold)
 
     @classmethod
     def from_config(cls, motor_cfg, clock=None):
         """Build the real objects from a motor config dict (DEFAULTS fill the gaps)."""
-        from .motor_config import DEFAULTS, validate_motor_config  # boot only: app drops it after
-
-        problems = validate_motor_config(motor_cfg)
-        if problems:
-            raise ValueError("; ".join(problems))
-        import machine
-        import rp2
-
-        c = dict(DEFAULTS)
-        c.update(motor_cfg)
-        Pin = machine.Pin
-        char_ms = 1 + 10000 // c["uart_baud"]
-        uart = machine.UART(c["uart"], baudrate=c["uart_baud"], tx=Pin(c["uart_tx"]), rx=Pin(c["uart_rx"]),
-                            timeout=2 + 3 * char_ms, timeout_char=2 + 3 * char_ms)
-        i2c = machine.I2C(c["encoder_i2c"], sda=Pin(c["encoder_sda"]), scl=Pin(c["encoder_scl"]),
-                          freq=c["encoder_freq"])
-        enable = Pin(c["enable"], Pin.OUT, value=1)  # ENN high: bridges off until begin()
-        sm = rp2.StateMachine(c["pio_sm"], burst_program(), freq=SM_FREQ,
-                              sideset_base=Pin(c["step"]), out_base=Pin(c["dir"]))
-        sm.active(1)
-        return cls(tmc.TMC2209(uart, c["tmc_address"]), AS5600(i2c, regs=i2c_registers(c["encoder_i2c"])),
-                   StepGenerator(sm, c["microsteps"], c["max_step_rate"], SM_FREQ, *pio_registers(c["pio_sm"])),
-                   enable, clock,
-                   c["update_hz"], c["rsense_ohm"], c["full_scale_ma"],
-                   c["encoder_slow_filter"], c["encoder_fast_threshold"])
+        from .motor_config import build_stepper  # boot only: app drops it after
+        return build_stepper(cls, motor_cfg, clock)
 
     # ---- setup ----
 

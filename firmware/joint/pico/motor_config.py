@@ -4,8 +4,12 @@ A module of its own because nothing here runs after boot: `app.build` drops it f
 `sys.modules` once the joint is built, and its code and tables leave the heap.
 """
 
+from ..clock import MonotonicClock
+from ..tickramp import TickRamp
+from ..velocity import FixedVelocityEstimator
 from . import tmc2209 as tmc
-from .stepgen import MIN_PERIOD, SM_FREQ
+from .as5600 import AS5600
+from .stepgen import MIN_PERIOD, SM_FREQ, StepGenerator, burst_program, pio_registers
 
 DEFAULT_PINS = {
     "uart": 1, "uart_tx": 8, "uart_rx": 9,
@@ -122,3 +126,102 @@ def validate_motor_config(cfg, joint_bus=None):
         except ValueError as exc:
             errors.append("full_scale_ma = %r cannot be set: %s" % (c["full_scale_ma"], exc))
     return errors
+
+
+# In usteps/s and usteps/s^2 (converted to the ramp's per-tick Q16 units at construction):
+# the TMC5130's largest AMAX/DMAX (0xFFFE at 10 MHz), which the library clamps to and which its
+# HARD stop uses, about 11 641 full steps/s^2; its VMAX limit, about 19 538 full steps/s; the
+# library constructor's profile.
+_MAX_ACCEL = 65534 * 45.4747
+_LIB_MAX_VEL = 0x7FFE00 * 0.596046
+_DEFAULT_VEL = 100 * 256
+_DEFAULT_ACCEL = 2000 * 256
+_BOOT_PERCENT = 40  # setup() sets run and hold current to 40 % whatever it is passed
+
+
+def build_stepper(cls, motor_cfg, clock):
+    """PicoStepper.from_config: the real objects from a motor config dict (DEFAULTS fill the gaps)."""
+    from .motor import i2c_registers
+
+
+    problems = validate_motor_config(motor_cfg)
+    if problems:
+        raise ValueError("; ".join(problems))
+    import machine
+    import rp2
+
+    c = dict(DEFAULTS)
+    c.update(motor_cfg)
+    Pin = machine.Pin
+    char_ms = 1 + 10000 // c["uart_baud"]
+    uart = machine.UART(c["uart"], baudrate=c["uart_baud"], tx=Pin(c["uart_tx"]), rx=Pin(c["uart_rx"]),
+                        timeout=2 + 3 * char_ms, timeout_char=2 + 3 * char_ms)
+    i2c = machine.I2C(c["encoder_i2c"], sda=Pin(c["encoder_sda"]), scl=Pin(c["encoder_scl"]),
+                      freq=c["encoder_freq"])
+    enable = Pin(c["enable"], Pin.OUT, value=1)  # ENN high: bridges off until begin()
+    sm = rp2.StateMachine(c["pio_sm"], burst_program(), freq=SM_FREQ,
+                          sideset_base=Pin(c["step"]), out_base=Pin(c["dir"]))
+    sm.active(1)
+    return cls(tmc.TMC2209(uart, c["tmc_address"]), AS5600(i2c, regs=i2c_registers(c["encoder_i2c"])),
+               StepGenerator(sm, c["microsteps"], c["max_step_rate"], SM_FREQ, *pio_registers(c["pio_sm"])),
+               enable, clock,
+               c["update_hz"], c["rsense_ohm"], c["full_scale_ma"],
+               c["encoder_slow_filter"], c["encoder_fast_threshold"])
+
+
+def init_stepper(m, driver, encoder, steps, enable, clock, update_hz, rsense_ohm, full_scale_ma,
+                 encoder_slow_filter, encoder_fast_threshold):
+    """PicoStepper.__init__ (see there): the state `m` keeps, set up once."""
+    m._drv = driver
+    m._enc = encoder
+    m._steps = steps
+    m._enable = enable
+    m._clock = clock or MonotonicClock()
+    m._microsteps = 256 // steps.upp
+    m._enc_conf = (encoder_slow_filter, encoder_fast_threshold)
+    m._vsense, m._cs_max = tmc.current_scale(rsense_ohm, full_scale_ma / 1000.0)
+    # The 1 kHz path is integers only (a float is a heap object on the board): the ramp runs
+    # in whole ticks of `_tick_us`, speeds in Q16 usteps per tick, accelerations per tick^2.
+    rate = int(update_hz)
+    m._rate = rate
+    m._vmax_den = 3 * rate  # set_rpm: 51200 / 60 usteps/s per rpm = 2560 / (3 * rate) per tick
+    m._tick_us = 1000000 // rate
+    m._ramp = TickRamp()
+    m._vel = FixedVelocityEstimator(rate)
+    # The 1 kHz path works on the state arrays themselves (ramp, estimator, pulse counters).
+    m._rs = m._ramp.s
+    m._vs = m._vel.s
+    m._ss = steps.s
+    m._sm = steps._sm
+    m._pio = steps.pio
+    m._es = encoder.s
+    # update()'s references, one tuple load instead of eight attribute loads (~2 us each)
+    m._hot = (m._ss, m._sm, m._pio, m._rs, m._es, encoder.regs, encoder.buf,
+                 m._vs)
+    num, den = 3 * rate, 2560
+    while den % 2 == 0 and num % 2 == 0:
+        num //= 2
+        den //= 2
+    while den % 5 == 0 and num % 5 == 0:
+        num //= 5
+        den //= 5
+    m._rpm_num, m._rpm_den = num, den  # ramp Q16 usteps/tick -> rpm Q16 = * num / den
+    m._per_tick = 65536 / rate  # usteps/s -> Q16 usteps/tick (configuration time only)
+    m._per_tick2 = 65536 / (rate * rate)
+    m._vmax_limit = m._v(min(_LIB_MAX_VEL, steps.max_usteps_per_s()))
+    m._max_accel = m._a(_MAX_ACCEL)
+    m._vmax = min(m._v(_DEFAULT_VEL), m._vmax_limit)
+    m._amax = m._a(_DEFAULT_ACCEL)
+    m._dmax = m._amax
+    m._threshold = 10
+    m._closed_loop = False
+    m._error = 0
+    m._stopping = False
+    m._irun = m._ihold = tmc.percent_to_cs(_BOOT_PERCENT, m._cs_max)
+    m._pwmconf = 0
+    m._ready = False
+    m._last_us = 0
+    m._ticks = m._clock.ticks_us
+    m._diff = m._clock.ticks_diff
+    m.fault = None  # last UART error after begin(), for diagnostics
+    m.faults = 0

@@ -1,0 +1,126 @@
+"""JointController's construction, boot only (app.BOOT_ONLY): the board forgets this code once the
+joint is built; the controller keeps only the state it made."""
+
+import struct
+
+from .fixed import STEPS_Q, to_q
+from .homing import HomingMonitor
+from .protocol import (
+    ACK, CHECKORIENTATION, CLEARSTALL, DISABLECLOSEDLOOP, DISABLESTALLGUARD,
+    ENABLECLOSEDLOOP, ENABLESTALLGUARD, FLAG_BUSY, FLAGS_AT_BOOT, HOME, IDENTITY, MOVEANGLE,
+    MOVESTEPS, MOVETOANGLE, PING, PROTOCOL, PROTOCOL_VERSION, SETBRAKEMODE, SETCURRENT, SETHOLDCURRENT,
+    SETMAXACCELERATION, SETMAXDECELERATION, SETMAXVELOCITY, SETRPM, SETUP, SPEC_HASH, WATCHDOG,
+)
+from .regtable import RegisterTable
+from .stall import StallDetector
+from .supervise import DETECTOR_NAMES
+from .tracking import TrackingDetector
+from .version import FIRMWARE_VERSION
+
+
+def init(core, hal, clock, cfg, log, critical):
+    """Set up `core` (a JointController) for motor `hal`, `clock`, configuration `cfg`, logger `log`."""
+    core.hal = hal
+    core.clock = clock
+    core.cfg = cfg
+    core.log = log
+    core.set_critical(critical)
+    core.flags = FLAGS_AT_BOOT | FLAG_BUSY
+    core.ready = False
+    core.disabled = not cfg.valid
+    # Setpoints and modes (main loop).
+    core.drive_current = 0
+    core.hold_current = 0
+    core.qd_set = 0  # rpm Q16
+    core.q_set = 0  # degrees Q12
+    core.positioning = False
+    core.closed_loop = False
+    core.inverted = False
+    core.stallguard = False
+    core.stall = StallDetector(cfg.stall)
+    st = cfg.stall
+    core.track = TrackingDetector(st.track_base, st.track_tau_ms, st.track_window, st.track_confirm,
+                                  st.track_sample_ms, st.track_cap, st.track_slope_q8)
+    core.detector = DETECTOR_NAMES.index(st.detector) if st.detector in DETECTOR_NAMES else 0
+    core.homing = HomingMonitor(cfg.homing, st)
+    # HOME sensitivity noise floor, integer for the IRQ: threshold + speed * per_rpm (Q10).
+    core._homing_floor = int(cfg.boot.control_threshold)
+    core._homing_floor_q = int(cfg.homing.floor_per_rpm * 1024 + 0.5)
+    # Deadman: 0 = the original's (velocity only, cfg.deadman_ms); WATCHDOG sets every mode.
+    core.watchdog_ms = 0
+    core._deadman_ms = cfg.deadman_ms
+    core._deadman_us = cfg.deadman_ms * 1000  # the main loop's test before calling the deadman
+    # Degrees Q12 from the encoder's zero (set where the rotor rested after homing) to the end
+    # stop's deepest point: the host's angle is the encoder's plus this.
+    core.zero_offset = 0
+    core._safe_pending = False
+    # The host's acceleration limits, restored after a deadman stop, and the deadman's
+    # quick-stop deceleration: full steps/s^2 Q4, converted here, once.
+    core.max_acceleration = core.max_deceleration = to_q(cfg.boot.max_acceleration, STEPS_Q)
+    core.stop_deceleration = to_q(cfg.stop_deceleration, STEPS_Q)
+    core.trace = None  # main loop: called with the detector after every stall-detection sample
+    # Reply caches: bytes of every readable register, packed ahead of the read.
+    core.registers = RegisterTable()  # what the joint keeps of the spec past boot
+    core._cache = [None] * len(core.registers.reply_size)  # by address, as far as the spec goes
+    for addr, size in enumerate(core.registers.reply_size):
+        if size:
+            core._cache[addr] = bytearray(size)
+    core._cache[PING][0] = ACK
+    core._cache_values = [0, 0, 0, 0]  # what the float caches hold (HAL units)
+    core._cache_turn = 0  # counts iterations: which of the slower caches is refreshed next
+    struct.pack_into("<BBBBBI", core._cache[IDENTITY], 0, PROTOCOL_VERSION, FIRMWARE_VERSION[0],
+                     FIRMWARE_VERSION[1], FIRMWARE_VERSION[2], cfg.joint_id, SPEC_HASH)
+    # IRQ-side state: the reply the next read gets, the command queue, counters.
+    core._init_irq_tables()
+    core._q_in = 0  # written by the IRQ path only
+    core._q_out = 0  # written by the main loop only
+    core._blocking_in = 0  # blocking commands accepted (IRQ) ...
+    core._blocking_out = 0  # ... and taken from the queue (main loop)
+    core._blocking_stops = 0  # stop epoch when the latest blocking command was accepted
+    core.transactions = 0
+    core._ticks_us = clock.ticks_us  # bound once: the IRQ path calls it
+    core.host_us = clock.ticks_us()
+    # Epochs (8 bits). `stops`: STOP frames (IRQ); a task or queued blocking command from an
+    # older epoch is cancelled. `halts`: whatever stopped the motor (STOP in the IRQ, stall or
+    # deadman in the main loop); queued motion from an older epoch is not applied.
+    # `stall_rearms`: frames that cleared STALL, so a stall decided before one is dropped.
+    core.stops = 0
+    core.halts = 0
+    core.stall_rearms = 0
+    core._stops_seen = 0
+    core._motion_allowed = False
+    core.rejects = 0
+    core._logged_rejects = 0
+    # Main-loop bookkeeping.
+    now = clock.ticks_ms()
+    core._seen_transactions = 0
+    core._last_host_us = core.host_us
+    core._next_stall_ms = now
+    core._stall_period_ms = int(cfg.stall.sample_time * 1000 + 0.5)
+    core._next_track_ms = now
+    core._next_sample_ms = now  # the earlier of the two
+    core._task = None
+    core.task_name = None
+    core._task_stops = 0  # the stop epoch the running task belongs to
+    core._task_wake = now
+    core._handlers = {
+        SETUP: core._setup, SETRPM: core._set_rpm, MOVESTEPS: core._move_steps,
+        MOVEANGLE: core._move_angle, MOVETOANGLE: core._move_to_angle,
+        SETCURRENT: core._set_current, SETHOLDCURRENT: core._set_hold_current,
+        SETMAXACCELERATION: core._set_max_acceleration,
+        SETMAXDECELERATION: core._set_max_deceleration, SETMAXVELOCITY: core._set_max_velocity,
+        ENABLESTALLGUARD: core._enable_stallguard, DISABLESTALLGUARD: core._disable_stallguard,
+        CLEARSTALL: core._clear_stall, SETBRAKEMODE: core._set_brake_mode,
+        ENABLECLOSEDLOOP: core._enable_closed_loop, DISABLECLOSEDLOOP: core._disable_closed_loop,
+        CHECKORIENTATION: core._check_orientation, HOME: core._home,
+        PROTOCOL: core._select_protocol, WATCHDOG: core._set_watchdog,
+    }
+    core.protocol_request = 0  # a PROTOCOL write (main loop); the protocol switch (v2.py) acts on it
+    if core.disabled:
+        for problem in cfg.errors:
+            log.error(problem)
+        log.error("invalid configuration: joint disabled, commands are rejected")
+        core.flags = FLAGS_AT_BOOT
+        core.ready = True
+    else:
+        core._start_task("boot", core._boot())
