@@ -418,6 +418,55 @@ def test_the_deployed_firmware_loads_on_the_micropython_unix_port(tmp_path):
     assert result.stdout.strip() == f"joint/app.mpy J3 True {FIRMWARE_VERSION}"
 
 
+def _traceback_on_the_unix_port(tmp_path: Path, line_numbers: bool) -> str:
+    """The traceback the deployed firmware prints on the unix port for a TMC2209 reply with a bad sync byte."""
+    image = flash.build_image("J1", unix_port_info(), line_numbers=line_numbers)
+    for path, data in image.files.items():
+        target = tmp_path / path.lstrip("/")
+        target.parent.mkdir(parents=True, exist_ok=True)
+        target.write_bytes(data)
+    code = ("import sys\nfrom joint.pico import tmc2209\n"
+            "try:\n    tmc2209.parse_reply(bytearray(8), 0, 1)\nexcept OSError as e:\n    sys.print_exception(e)")
+    result = subprocess.run([micropython(), "-c", code], capture_output=True, text=True, cwd=tmp_path,
+                            env=dict(os.environ, MICROPYPATH=str(tmp_path)), timeout=60)
+    assert result.returncode == 0, result.stdout + result.stderr
+    return result.stdout
+
+
+def test_a_traceback_names_the_line_only_in_a_debug_build(tmp_path):
+    """The default image leaves the line tables out (less heap on the board); --debug keeps them."""
+    source = (ROOT / "firmware" / "joint" / "pico" / "tmc2209.py").read_text().splitlines()
+    line = next(i for i, text in enumerate(source, 1) if "bad sync byte" in text)
+    where = f'File "joint/pico/tmc2209.mpy", line {line}, in parse_reply'
+    assert where in _traceback_on_the_unix_port(tmp_path / "debug", True)
+    release = _traceback_on_the_unix_port(tmp_path / "release", False)
+    assert "in parse_reply" in release and where not in release and "bad sync byte" in release
+
+
+def test_release_builds_are_smaller_and_the_cli_keeps_line_numbers_with_debug(capsys, monkeypatch):
+    release = flash.build_image("J2", flash.STOCK_PICO)
+    debug = flash.build_image("J2", flash.STOCK_PICO, line_numbers=True)
+    assert "without line numbers" in release.build and "with line numbers" in debug.build
+    mpys = [p for p in release.files if p.endswith(".mpy")]
+    assert all(len(release.files[p]) <= len(debug.files[p]) for p in mpys)
+    assert sum(len(release.files[p]) for p in mpys) < sum(len(debug.files[p]) for p in mpys) - 2000
+    monkeypatch.setattr(mpboard, "open_board", lambda port: pytest.fail("no board is opened"))
+    for argv, image in (([], release), (["--debug"], debug)):
+        assert cli.main(["flash", "--joint", "j2", "--dry-run", "--json", *argv]) == 0
+        result = json.loads(capsys.readouterr().out)
+        assert result["build"] == image.build and result["files"] == {p: len(d) for p, d in image.files.items()}
+
+
+def test_the_firmware_does_not_rely_on_assert_which_release_builds_drop():
+    """-O3 compiles `assert` away and makes `__debug__` False: the firmware must use neither."""
+    import ast
+
+    for name, source in flash.firmware_sources().items():
+        for node in ast.walk(ast.parse(source)):
+            assert not isinstance(node, ast.Assert), f"{name}:{node.lineno}: assert (dropped by -O3)"
+            assert not (isinstance(node, ast.Name) and node.id == "__debug__"), f"{name}:{node.lineno}"
+
+
 class UnixPortBoard(mpboard.MpremoteBoard):
     """The unix port through mpremote; it has no machine.I2CTarget, so that is pretended."""
 

