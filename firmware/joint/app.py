@@ -48,10 +48,10 @@ def build(machine, config_path=CONFIG_FILE, clock=None, write=None):
 
 
 # Modules used only while building (package attribute paths under `joint`): the configuration's
-# schema and checks, the Pico backend's defaults and validation, the register spec's objects
-# (about 27 KB of heap together). The running joint keeps what it needs of them in settings.py's
-# objects and regtable.RegisterTable.
-BOOT_ONLY = ("config", "core_init", "pico.motor_config", "protocol")
+# schema and checks, the Pico backend's defaults and validation, the register spec's objects, the
+# builders of the controller and its IRQ tables (about 28 KB of heap together). The running joint
+# keeps what it needs of them in settings.py's objects, regtable.RegisterTable and its own state.
+BOOT_ONLY = ("config", "core_init", "irq_init", "pico.motor_config", "protocol")
 
 
 def _drop_boot_only():

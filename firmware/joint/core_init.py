@@ -5,6 +5,7 @@ import struct
 
 from .fixed import STEPS_Q, to_q
 from .homing import HomingMonitor
+from .irq_init import init as init_irq
 from .protocol import (
     ACK, CHECKORIENTATION, CLEARSTALL, DISABLECLOSEDLOOP, DISABLESTALLGUARD,
     ENABLECLOSEDLOOP, ENABLESTALLGUARD, FLAG_BUSY, FLAGS_AT_BOOT, HOME, IDENTITY, MOVEANGLE,
@@ -71,7 +72,7 @@ def init(core, hal, clock, cfg, log, critical):
     struct.pack_into("<BBBBBI", core._cache[IDENTITY], 0, PROTOCOL_VERSION, FIRMWARE_VERSION[0],
                      FIRMWARE_VERSION[1], FIRMWARE_VERSION[2], cfg.joint_id, SPEC_HASH)
     # IRQ-side state: the reply the next read gets, the command queue, counters.
-    core._init_irq_tables()
+    init_irq(core)
     core._q_in = 0  # written by the IRQ path only
     core._q_out = 0  # written by the main loop only
     core._blocking_in = 0  # blocking commands accepted (IRQ) ...

@@ -13,13 +13,6 @@ read writes the flags into the last byte and hands the whole buffer to the port,
 
 from .emitters import micropython, ptr8
 
-from .protocol import (
-    F32, FLAG_ERROR, FLAG_NOTENABLED, FLAG_STALL, HOMEOFFSET, I32, LASTERROR, MAX_FRAME,
-    HOME, MOVEANGLE, MOVESTEPS, MOVETOANGLE, PING, REJECT_BUSY, REJECT_DISABLED,
-    REJECT_HOMING_SENSITIVITY, REJECT_LENGTH, REJECT_NONE, REJECT_NOT_ENABLED, REJECT_QUEUE_FULL,
-    REJECT_STALLED, REJECT_UNKNOWN_REGISTER, REJECT_UNSUPPORTED, REJECT_VALUE, SETRPM, STOP, U8, U16,
-)
-
 try:
     from micropython import const
 except ImportError:
@@ -33,13 +26,12 @@ SLOT = const(8)
 SLOT_FLAGS = const(5)
 SLOT_HALTS = const(6)
 SLOT_STOPS = const(7)
-MOTION_BLOCKED = FLAG_STALL | FLAG_NOTENABLED
 # IRQ counters wrap here: +1 must stay a small int on 32-bit ports (largest 2**30 - 1) even before
 # the mask, or the hard IRQ would allocate a long int.
 COUNTER_MASK = const(0x1FFFFFFF)
 
-# The protocol's numbers the viper code compares with, as constants of this module (viper cannot
-# compare with another module's names); checked against protocol.py below.
+# The protocol's numbers this module uses, as its own constants (viper cannot compare with another
+# module's names, and the board forgets protocol.py after boot); test_irq_path checks them.
 _R_NONE = const(0)
 _R_UNKNOWN_REGISTER = const(1)
 _R_LENGTH = const(3)
@@ -47,121 +39,47 @@ _R_VALUE = const(4)
 _R_BUSY = const(5)
 _R_QUEUE_FULL = const(6)
 _R_DISABLED = const(7)
-_FLAG_STALL = const(0x01)
 _R_NOT_ENABLED = const(8)
 _R_STALLED = const(9)
 _R_HOMING_SENSITIVITY = const(10)
+_FLAG_STALL = const(0x01)
 _FLAG_NOTENABLED = const(0x08)
+_FLAG_ERROR = const(0x10)
 _HOMEOFFSET = const(0x2E)
 _STOP = const(0x29)
 _SETRPM = const(0x11)
-_FLAG_ERROR = const(0x10)
-if ((_R_NONE, _R_UNKNOWN_REGISTER, _R_LENGTH, _R_VALUE, _R_BUSY, _R_QUEUE_FULL, _R_DISABLED,
-     _R_NOT_ENABLED, _R_STALLED, _R_HOMING_SENSITIVITY, _FLAG_STALL, _FLAG_NOTENABLED, _HOMEOFFSET,
-     _STOP, _SETRPM, SLOT_FLAGS, SLOT, _FLAG_ERROR)
-        != (REJECT_NONE, REJECT_UNKNOWN_REGISTER, REJECT_LENGTH, REJECT_VALUE, REJECT_BUSY,
-            REJECT_QUEUE_FULL, REJECT_DISABLED, REJECT_NOT_ENABLED, REJECT_STALLED,
-            REJECT_HOMING_SENSITIVITY, FLAG_STALL, FLAG_NOTENABLED, HOMEOFFSET, STOP, SETRPM,
-            MAX_FRAME, MAX_FRAME + 3, FLAG_ERROR)):
-    raise ImportError("irq.py constants differ from protocol.py")
+_LASTERROR = const(0x31)
+MOTION_BLOCKED = const(0x09)  # FLAG_STALL | FLAG_NOTENABLED
 
-# The frame table (`_ftab`, one bytearray so viper code reaches it through one pointer): by register
-# address (every register is below _REGISTERS; any other address is unknown), the reject reason
-# whatever the payload (or REJECT_NONE), the frame length a payload needs, how the payload is
-# checked, the spec's flag effects, what the joint's state may refuse, then the payload limits.
+# The frame table's layout (irq_init.py builds it at boot and documents it), as this module's
+# constants for the viper code; test_irq_path checks they are irq_init's.
 _REGISTERS = const(64)
 REGISTER_SPACE = const(64)  # for i2c_target.py
 _PRE = const(0)
-_WLEN = const(64)
 FTAB_WLEN = const(64)  # for i2c_target.py
+_WLEN = const(64)
 _CHECK = const(128)
 _SETS = const(192)
 _CLEARS = const(256)
 _ZERO_SETS = const(320)
 _BLOCKS = const(384)
-_REFUSE = const(448)  # _MOTION or _HOMING
-_LO = const(512)  # CHECK_BYTES: payload byte i within [_LO, _HI] at addr*4 + i
+_REFUSE = const(448)
+_LO = const(512)
 _HI = const(768)
-_LIMITS = const(1024)  # CHECK_F32: the |value| limits as 16-bit halves (low high16, low low16,
-#                        high high16, high low16), little-endian, at addr*8; CHECK_U16: low, high
-# State bytes mirrored from the core's attributes where they are written (a byte here costs the
-# viper code no lookup): 1 if the joint is disabled; the stop and halt epochs.
+_LIMITS = const(1024)
 _DISABLED = const(1536)
 _STOPS = const(1537)
 _HALTS = const(1538)
 FTAB_DISABLED = const(1536)  # for loop.py
 FTAB_HALTS = const(1538)
-_FTAB_SIZE = const(1539)
-_MOTION = const(1)  # refused while stalled or not enabled (SETRPM: unless 0 rpm)
-_HOMING = const(2)  # refused at or below the homing sensitivity noise floor
-
-CHECK_BYTES = const(0)  # every field U8
-CHECK_F32 = const(1)  # one F32 field: finite, |value| within the limits
-CHECK_U16 = const(2)  # one U16 field
-CHECK_ANY = const(3)  # one I32 field: any value
+_MOTION = const(1)
+_HOMING = const(2)
+_CHECK_BYTES = const(0)
+_CHECK_F32 = const(1)
+_CHECK_U16 = const(2)
 
 
-def _payload_check(reg):
-    """The check kind for a register's write fields; ValueError if the tables cannot check them."""
-    kinds = [f.kind for f in reg.write]
-    if all(k == U8 for k in kinds) and len(kinds) <= 4:
-        return CHECK_BYTES
-    if kinds == [F32]:
-        return CHECK_F32
-    if kinds == [U16]:
-        return CHECK_U16
-    if kinds == [I32]:
-        return CHECK_ANY
-    raise ValueError("the IRQ frame tables cannot check register %s" % reg.name)
-
-
-def _put16(table, off, value):
-    table[off] = value & 0xFF
-    table[off + 1] = value >> 8
-
-
-def frame_table():
-    """The frame table (layout above) for the protocol's registers."""
-    from .protocol import BY_ADDR  # at boot only: the board forgets the spec's objects after boot
-    t = bytearray(_FTAB_SIZE)
-    for addr in range(256):
-        reg = BY_ADDR[addr]
-        if addr >= _REGISTERS:
-            if reg is not None:
-                raise ValueError("register %s is outside the IRQ frame table" % reg.name)
-        elif reg is None:
-            t[_PRE + addr] = REJECT_UNKNOWN_REGISTER
-        elif not reg.supported:
-            t[_PRE + addr] = REJECT_UNSUPPORTED
-        elif reg.wsize == 0:
-            t[_PRE + addr] = REJECT_LENGTH
-        else:
-            kind = _payload_check(reg)
-            t[_WLEN + addr] = 1 + reg.wsize
-            t[_CHECK + addr] = kind
-            t[_SETS + addr] = reg.sets
-            t[_CLEARS + addr] = reg.clears
-            t[_ZERO_SETS + addr] = reg.zero_sets
-            t[_BLOCKS + addr] = reg.blocking
-            if addr in (SETRPM, MOVETOANGLE, MOVEANGLE, MOVESTEPS):
-                t[_REFUSE + addr] = _MOTION
-            elif addr == HOME:
-                t[_REFUSE + addr] = _HOMING
-            if kind == CHECK_BYTES:
-                for i, f in enumerate(reg.write):
-                    t[_LO + addr * 4 + i] = f.lo
-                    t[_HI + addr * 4 + i] = f.hi
-            elif kind == CHECK_F32:
-                f = reg.write[0]
-                for i, half in enumerate((f._lo_hi16, f._lo_lo16, f._hi_hi16, f._hi_lo16)):
-                    _put16(t, _LIMITS + addr * 8 + 2 * i, half)
-            elif kind == CHECK_U16:
-                _put16(t, _LIMITS + addr * 8, reg.write[0].lo)
-                _put16(t, _LIMITS + addr * 8 + 2, reg.write[0].hi)
-    return t
-
-
-def _judge_for(core, ftab, queue_buf):
+def judge_for(core, ftab, queue_buf):
     """`core.judge`: a viper closure (its tables in cells, not looked up per call)."""
 
     @micropython.viper
@@ -182,7 +100,7 @@ def _judge_for(core, ftab, queue_buf):
             reason = _R_LENGTH
         if reason == _R_NONE:
             kind = t[_CHECK + addr]
-            if kind == CHECK_BYTES:
+            if kind == _CHECK_BYTES:
                 lo = _LO + addr * 4 - 1
                 hi = _HI + addr * 4 - 1
                 i = 1
@@ -190,7 +108,7 @@ def _judge_for(core, ftab, queue_buf):
                     if f[i] < t[lo + i] or f[i] > t[hi + i]:
                         reason = _R_VALUE
                     i += 1
-            elif kind == CHECK_F32:
+            elif kind == _CHECK_F32:
                 o = _LIMITS + addr * 8
                 b3 = f[4] & 0x7F
                 b2 = f[3]
@@ -206,7 +124,7 @@ def _judge_for(core, ftab, queue_buf):
                     reason = _R_VALUE
                 elif hi16 > high_hi or (hi16 == high_hi and lo16 > high_lo):
                     reason = _R_VALUE
-            elif kind == CHECK_U16:
+            elif kind == _CHECK_U16:
                 o = _LIMITS + addr * 8
                 value = f[1] | (f[2] << 8)
                 if value < (t[o] | (t[o + 1] << 8)) or value > (t[o + 2] | (t[o + 3] << 8)):
@@ -290,26 +208,6 @@ class IrqPath:
     last byte, the only one of a flags-only reply), selected once when the register is written.
     """
 
-    def _init_irq_tables(self):
-        """Wire buffers for the reply caches and the per-register frame tables, from the spec."""
-        self._wires = [None] * _REGISTERS
-        for addr in range(len(self._cache)):
-            cache = self._cache[addr]
-            if cache is not None:
-                n = len(cache)
-                wire = bytearray(n + 1)
-                wire[:n] = cache
-                view = memoryview(wire)
-                self._cache[addr] = view[:n]  # the main loop packs here, as before
-                self._wires[addr] = view
-        self._flags_wire = memoryview(bytearray(1))
-        self._ftab = frame_table()
-        self._ftab[FTAB_DISABLED] = 1 if self.disabled else 0
-        self._queue = bytearray(QUEUE_SLOTS * SLOT)
-        self.judge = _judge_for(self, self._ftab, self._queue)
-        self._reply_wire = self._wires[PING]
-        self._reply_err = 0
-
     def host_seen(self):
         """A transaction addressed to this joint ended (feeds the deadman)."""
         self.host_us = self._ticks_us()  # when: the deadman counts from here, not from the loop
@@ -342,7 +240,7 @@ class IrqPath:
 
     def _reject(self, addr, reason):
         self.rejects = (self.rejects + 1) & 0xFFFF
-        cache = self._cache[LASTERROR]
+        cache = self._cache[_LASTERROR]
         cache[0] = reason
         cache[1] = addr
         cache[2] = self.rejects & 0xFF

@@ -273,6 +273,32 @@ def test_the_irq_frame_checks_give_the_spec_verdict_for_every_register():
     rig.assert_handler_alive()
 
 
+def test_the_irq_code_reads_the_spec_and_the_frame_table_where_they_are():
+    """irq.py's viper code keeps the spec's numbers and the frame table's offsets as its own
+    constants (the board forgets protocol.py and irq_init.py after boot): they must be theirs."""
+    if MICROPYTHON:
+        return  # const() names with a leading underscore are no module attributes there
+    from joint import irq, irq_init as T
+    assert (irq._R_NONE, irq._R_UNKNOWN_REGISTER, irq._R_LENGTH, irq._R_VALUE, irq._R_BUSY,
+            irq._R_QUEUE_FULL, irq._R_DISABLED, irq._R_NOT_ENABLED, irq._R_STALLED,
+            irq._R_HOMING_SENSITIVITY) == (
+        P.REJECT_NONE, P.REJECT_UNKNOWN_REGISTER, P.REJECT_LENGTH, P.REJECT_VALUE, P.REJECT_BUSY,
+        P.REJECT_QUEUE_FULL, P.REJECT_DISABLED, P.REJECT_NOT_ENABLED, P.REJECT_STALLED,
+        P.REJECT_HOMING_SENSITIVITY)
+    assert (irq._FLAG_STALL, irq._FLAG_NOTENABLED, irq._FLAG_ERROR, irq.MOTION_BLOCKED) == (
+        P.FLAG_STALL, P.FLAG_NOTENABLED, P.FLAG_ERROR, P.FLAG_STALL | P.FLAG_NOTENABLED)
+    assert (irq._HOMEOFFSET, irq._STOP, irq._SETRPM, irq._LASTERROR) == (P.HOMEOFFSET, P.STOP, P.SETRPM, P.LASTERROR)
+    assert (irq.SLOT_FLAGS, irq.SLOT) == (P.MAX_FRAME, P.MAX_FRAME + 3)
+    assert (irq._REGISTERS, irq.REGISTER_SPACE, irq._PRE, irq._WLEN, irq.FTAB_WLEN, irq._CHECK, irq._SETS,
+            irq._CLEARS, irq._ZERO_SETS, irq._BLOCKS, irq._REFUSE, irq._LO, irq._HI, irq._LIMITS) == (
+        T.REGISTERS, T.REGISTERS, T.PRE, T.WLEN, T.WLEN, T.CHECK, T.SETS, T.CLEARS, T.ZERO_SETS, T.BLOCKS,
+        T.REFUSE, T.LO, T.HI, T.LIMITS)
+    assert (irq._DISABLED, irq.FTAB_DISABLED, irq._STOPS, irq._HALTS, irq.FTAB_HALTS, irq._MOTION, irq._HOMING) == (
+        T.DISABLED, T.DISABLED, T.STOPS, T.HALTS, T.HALTS, T.MOTION, T.HOMING)
+    assert (irq._CHECK_BYTES, irq._CHECK_F32, irq._CHECK_U16) == (T.CHECK_BYTES, T.CHECK_F32, T.CHECK_U16)
+    assert T.SIZE == T.HALTS + 1 and T.REGISTERS * 4 <= T.HI - T.LO and T.LIMITS + T.REGISTERS * 8 <= T.DISABLED
+
+
 class Rp2Events:
     """machine.I2CTarget as the rp2 driver drives a handler, one event at a time, with the bus
     activity bit under the test's control: for event orders the simulated bus never produces."""
