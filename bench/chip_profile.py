@@ -134,12 +134,9 @@ for m in {modules!r}:
     last = free
 from joint import app
 import machine
-core, cfg, log = app.build(machine)
+core, cfg, log = app.boot(machine)
 gc.collect(); free = gc.mem_free()
-print("%-24s %6d bytes" % ("app.build()", last - free)); last = free
-import time
-while not core.ready:
-    core.service(); time.sleep_ms(1)
+print("%-24s %6d bytes" % ("app.boot()", last - free)); last = free
 switch = app.join_bus(machine, core, cfg, log)
 from joint.debug import DebugConsole, UsbStdio
 stdio = UsbStdio()
@@ -168,9 +165,7 @@ import gc, time, machine
 from joint import app, protocol as P
 from joint.debug import DebugConsole, UsbStdio
 from joint.fixed import store_q
-core, cfg, log = app.build(machine)
-while not core.ready:
-    core.service(); time.sleep_ms(1)
+core, cfg, log = app.boot(machine)
 switch = app.join_bus(machine, core, cfg, log)
 stdio = UsbStdio()
 console = DebugConsole(core, stdio.read, stdio.write)

@@ -51,7 +51,7 @@ def build(machine, config_path=CONFIG_FILE, clock=None, write=None):
 # schema and checks, the Pico backend's defaults and validation, the register spec's objects, the
 # builders of the controller and its IRQ tables (about 28 KB of heap together). The running joint
 # keeps what it needs of them in settings.py's objects, regtable.RegisterTable and its own state.
-BOOT_ONLY = ("config", "core_init", "irq_init", "pico.motor_config", "protocol")
+BOOT_ONLY = ("config", "core_init", "irq_init", "pico.motor_config", "pico.tmc2209_setup", "protocol")
 
 
 def _drop_boot_only():
@@ -121,14 +121,23 @@ def join_bus(machine, core, cfg, log):
         return None
 
 
-def run(config_path=CONFIG_FILE):
-    import machine
+def boot(machine, config_path=CONFIG_FILE):
+    """`build`, then the boot task run to its end (the original's setup()); returns (core, cfg, log)."""
     import time
 
     core, cfg, log = build(machine, config_path)
     while not core.ready:
         core.service()
         time.sleep_ms(1)
+    _drop_boot_only()  # again: the boot task's PicoStepper.begin loads pico.motor_config
+    return core, cfg, log
+
+
+def run(config_path=CONFIG_FILE):
+    import machine
+    import time
+
+    core, cfg, log = boot(machine, config_path)
     switch = join_bus(machine, core, cfg, log)
     stdio = UsbStdio()
     log.set_writer(stdio.write)

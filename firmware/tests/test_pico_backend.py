@@ -11,6 +11,7 @@ import sys
 from joint.pico import as5600 as enc
 from joint.pico import stepgen as sg
 from joint.pico import tmc2209 as tmc
+from joint.pico import tmc2209_setup as tmc_setup
 from joint.pico.as5600 import AS5600
 from joint.pico.motor import PicoStepper
 from joint.pico.motor_config import DEFAULTS, validate_motor_config
@@ -384,12 +385,12 @@ def test_register_fields():
     assert tmc.gconf(False) & (tmc.I_SCALE_ANALOG | tmc.EN_SPREADCYCLE) == 0
     assert tmc.ihold_irun(13, 13) == 0x0D0D
     assert tmc.ihold_irun(0, 31, 15) == 0x000F1F00
-    assert [tmc.mres(m) for m in (256, 128, 64, 32, 16, 8, 4, 2, 1)] == list(range(9))
+    assert [tmc_setup.mres(m) for m in (256, 128, 64, 32, 16, 8, 4, 2, 1)] == list(range(9))
     for bad in (0, 3, 12, 512):
-        raises(ValueError, tmc.mres, bad)
-    chop = tmc.chopconf(0x10000053, 16, 1)
+        raises(ValueError, tmc_setup.mres, bad)
+    chop = tmc_setup.chopconf(0x10000053, 16, 1)
     assert chop == 0x10000053 | (4 << 24) | (1 << 17)  # MRES=4, vsense, intpol kept, chopper kept
-    assert tmc.chopconf(0x0F000000, 256, 0) == 0x10000003  # TOFF=0 would disable the bridges
+    assert tmc_setup.chopconf(0x0F000000, 256, 0) == 0x10000003  # TOFF=0 would disable the bridges
     assert tmc.pwmconf(0xC10D0024, tmc.FREEWHEEL_SHORT_LS) == 0xC12D0024
     assert tmc.pwmconf(0xC13D0024, tmc.FREEWHEEL_NORMAL) == 0xC10D0024
 
@@ -404,18 +405,18 @@ def test_drv_status_decode():
 def test_current_formula_against_the_datasheet_sense_resistor_table():
     # R_sense -> RMS current at CS=31, vsense=0 (TMC2209 datasheet, "Selecting sense resistors")
     for rsense, amps in ((1.00, 0.23), (0.47, 0.47), (0.22, 0.96), (0.15, 1.35), (0.10, 1.92)):
-        assert abs(tmc.rms_current(31, 0, rsense) - amps) < 0.006
-    assert abs(tmc.rms_current(15, 1, 0.11) / tmc.rms_current(31, 1, 0.11) - 0.5) < 1e-9
+        assert abs(tmc_setup.rms_current(31, 0, rsense) - amps) < 0.006
+    assert abs(tmc_setup.rms_current(15, 1, 0.11) / tmc_setup.rms_current(31, 1, 0.11) - 0.5) < 1e-9
 
 
 def test_full_scale_picks_vsense_and_cs():
-    assert tmc.current_scale(0.11, 1.5) == (0, 26)  # too much for vsense=1 (0.98 A max)
-    assert tmc.current_scale(0.11, 0.8) == (1, 25)  # fits vsense=1: finer steps
+    assert tmc_setup.current_scale(0.11, 1.5) == (0, 26)  # too much for vsense=1 (0.98 A max)
+    assert tmc_setup.current_scale(0.11, 0.8) == (1, 25)  # fits vsense=1: finer steps
     for rsense, amps in ((0.11, 1.5), (0.11, 0.8), (0.22, 0.5)):
-        vsense, cs = tmc.current_scale(rsense, amps)
-        assert tmc.rms_current(cs, vsense, rsense) <= amps < tmc.rms_current(cs + 1, vsense, rsense)
-    raises(ValueError, tmc.current_scale, 0.11, 1.9)
-    raises(ValueError, tmc.current_scale, 0.11, 0.01)
+        vsense, cs = tmc_setup.current_scale(rsense, amps)
+        assert tmc_setup.rms_current(cs, vsense, rsense) <= amps < tmc_setup.rms_current(cs + 1, vsense, rsense)
+    raises(ValueError, tmc_setup.current_scale, 0.11, 1.9)
+    raises(ValueError, tmc_setup.current_scale, 0.11, 0.01)
 
 
 def test_percent_to_current_scale_matches_the_library():
@@ -435,9 +436,9 @@ def test_brake_modes_map_to_ihold_and_freewheel():
 
 
 def test_timing_registers():
-    assert tmc.tpowerdown(0.524) == 24  # 24 * 2^18 / 12 MHz = 0.524 s
-    assert tmc.tpowerdown(100) == 255
-    assert tmc.tpwmthrs(2000.0) == 6000  # 12 MHz / 2000 usteps/s
+    assert tmc_setup.tpowerdown(0.524) == 24  # 24 * 2^18 / 12 MHz = 0.524 s
+    assert tmc_setup.tpowerdown(100) == 255
+    assert tmc_setup.tpwmthrs(2000.0) == 6000  # 12 MHz / 2000 usteps/s
 
 
 # ---- AS5600 ----

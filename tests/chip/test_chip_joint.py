@@ -56,5 +56,8 @@ def test_the_deployed_image_boots_the_joint_with_a_clear_message_and_a_safe_join
             assert b"flags NOTHOMED|NOTENABLED" in status and b"disabled yes" in status, status
             console.write(b"\x03")  # Ctrl-C: the loop leaves the joint safe, then the REPL
             assert console.read_until(b">>> ").find(b"stopped by Ctrl-C: motor off, joint off the bus") >= 0
+            # The boot task (PicoStepper.begin) ran: what only boot needs is off the heap again.
+            console.write(b"import sys; from joint import app; print([m for m in app.BOOT_ONLY if 'joint.' + m in sys.modules])\r\n")
+            assert console.read_until(b"]\r\n").endswith(b"\r\n[]\r\n")
         finally:
             console.close()

@@ -23,6 +23,7 @@ import serial
 
 from bioscara.firmware import protocol as P
 from bioscara.firmware.pico import tmc2209 as tmc
+from bioscara.firmware.pico import tmc2209_setup as tmc_setup
 from chip.board import EmulatedPico
 from chip.i2c import JointBusClient, joint_bus_plugin
 from chip.joint_devices import JOINT_DEVICES_PLUGIN, USTEPS_PER_REV, JointDevices
@@ -147,7 +148,7 @@ def test_current_commands_over_the_joint_bus_reach_the_driver(booted) -> None:
     the Pico backend, UART1, the TMC2209's register file."""
     pico, devices, _, _ = booted
     bus = JointBusClient(pico)
-    _, cs_max = tmc.current_scale(0.11, 1.5)
+    _, cs_max = tmc_setup.current_scale(0.11, 1.5)
     # The console's "ready" comes before main.py joins the bus: wait 100 ms (emulated) and PING.
     ping = bus.transfer(0x11, bytes([P.PING]), 2, gap_us=100_000)
     assert ping.ack and ping.data[0] == P.ACK, ping
@@ -166,7 +167,7 @@ def test_current_commands_over_the_joint_bus_reach_the_driver(booted) -> None:
 def test_setup_writes_the_configured_currents(joint) -> None:
     pico, devices, _, _ = joint
     board(pico, "send(P.SETUP, 'BBBB', 60, 25, 0, 0)\nrun(5)")
-    vsense, cs_max = tmc.current_scale(0.11, 1.5)
+    vsense, cs_max = tmc_setup.current_scale(0.11, 1.5)
     driver = devices.state()["driver"]
     assert (driver["irun"], driver["ihold"]) == (tmc.percent_to_cs(60, cs_max), tmc.percent_to_cs(25, cs_max))
     assert driver["vsense"] == vsense

@@ -43,8 +43,6 @@ from .as5600 import next_sample as _enc_next
 from .stepgen import _issue as _steps_issue, _poll as _steps_poll
 
 
-_POWERDOWN_S = 0.524  # the TMC5130's reset TPOWERDOWN (20) at 10 MHz, kept for the same feel
-_STEALTH_MAX = 2000.0  # usteps/s: the library's TPWMTHRS=5000 at 10 MHz
 _FS_Q4_CAP = 20000 * 16  # full steps/s(^2) in Q4 beyond every limit below: keeps products small
 _MAX_DT_TICKS = 4  # a late update advances the ramp by at most this many loop periods
 
@@ -128,53 +126,8 @@ class PicoStepper(MotorHAL):
     def begin(self):
         """setup(CLOSEDLOOP, 200): driver and encoder configured, encoder and driver zeroed,
         40 %/40 % current, closed loop inactive. Raises OSError (TMCError) on a hardware fault."""
-        drv = self._drv
-        version = drv.read(tmc.IOIN) >> 24
-        if version != tmc.VERSION:
-            raise tmc.TMCError("TMC2209 at node %d reports version 0x%02x, expected 0x21"
-                               % (drv.node, version))
-        chop = tmc.chopconf(drv.read(tmc.CHOPCONF), self._microsteps, self._vsense)
-        self._pwmconf = tmc.pwmconf(drv.read(tmc.PWMCONF), tmc.FREEWHEEL_SHORT_LS)
-        before = drv.read(tmc.IFCNT)
-        writes = (
-            (tmc.GSTAT, 7),  # clear reset/error flags (write 1 to clear)
-            (tmc.GCONF, tmc.gconf(False)),
-            (tmc.CHOPCONF, chop),
-            (tmc.PWMCONF, self._pwmconf),
-            (tmc.TPOWERDOWN, tmc.tpowerdown(_POWERDOWN_S)),
-            (tmc.TPWMTHRS, tmc.tpwmthrs(_STEALTH_MAX)),
-            (tmc.IHOLD_IRUN, tmc.ihold_irun(self._ihold, self._irun)),
-        )
-        for reg, value in writes:
-            drv.write(reg, value)
-        counted = (drv.read(tmc.IFCNT) - before) & 0xFF
-        if counted != len(writes):
-            raise tmc.TMCError("TMC2209 accepted %d of %d configuration writes (IFCNT)"
-                               % (counted, len(writes)))
-        enc = self._enc
-        detected, weak, strong = decode_status(enc.status())
-        if not detected or weak or strong:
-            problem = "not detected" if not detected else "too weak" if weak else "too strong"
-            raise OSError("AS5600: magnet %s (check the magnet and its distance)" % problem)
-        enc.configure(self._enc_conf[0], self._enc_conf[1])
-        enc.start()
-        self._vel.reset()
-        self._steps.shift(-self._steps.position)
-        ramp = self._ramp
-        ramp.set_position(self._steps.commanded)
-        ramp.v = 0
-        ramp.mode = POSITIONING
-        ramp.xtarget = ramp.xactual()
-        ramp.vmax = 0  # the library leaves VMAX at 0 until the first motion call
-        ramp.amax = self._amax
-        ramp.dmax = self._dmax
-        self._closed_loop = False
-        self._error = 0
-        self._stopping = False
-        if self._enable is not None:
-            self._enable.value(0)
-        self._last_us = self._clock.ticks_us()
-        self._ready = True
+        from .motor_config import begin_stepper  # boot only: app drops it after the boot task
+        begin_stepper(self)
 
     # ---- the timer interrupt of the library, once per main-loop iteration ----
 

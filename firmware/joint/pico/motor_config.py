@@ -1,14 +1,16 @@
-"""The Pico backend's motor configuration: defaults, pins and their validation (boot only).
+"""The Pico backend's motor configuration: defaults, pins and their validation, and PicoStepper's
+construction and begin() (boot only).
 
 A module of its own because nothing here runs after boot: `app.build` drops it from
 `sys.modules` once the joint is built, and its code and tables leave the heap.
 """
 
 from ..clock import MonotonicClock
-from ..tickramp import TickRamp
+from ..tickramp import POSITIONING, TickRamp
 from ..velocity import FixedVelocityEstimator
 from . import tmc2209 as tmc
-from .as5600 import AS5600
+from .as5600 import AS5600, decode_status
+from .tmc2209_setup import chopconf, current_scale, tpowerdown, tpwmthrs
 from .stepgen import MIN_PERIOD, SM_FREQ, StepGenerator, burst_program, pio_registers
 
 DEFAULT_PINS = {
@@ -122,7 +124,7 @@ def validate_motor_config(cfg, joint_bus=None):
             owners[pin] = key
     if "rsense_ohm" not in bad and "full_scale_ma" not in bad:
         try:
-            tmc.current_scale(c["rsense_ohm"], c["full_scale_ma"] / 1000.0)
+            current_scale(c["rsense_ohm"], c["full_scale_ma"] / 1000.0)
         except ValueError as exc:
             errors.append("full_scale_ma = %r cannot be set: %s" % (c["full_scale_ma"], exc))
     return errors
@@ -137,6 +139,8 @@ _LIB_MAX_VEL = 0x7FFE00 * 0.596046
 _DEFAULT_VEL = 100 * 256
 _DEFAULT_ACCEL = 2000 * 256
 _BOOT_PERCENT = 40  # setup() sets run and hold current to 40 % whatever it is passed
+_POWERDOWN_S = 0.524  # the TMC5130's reset TPOWERDOWN (20) at 10 MHz, kept for the same feel
+_STEALTH_MAX = 2000.0  # usteps/s: the library's TPWMTHRS=5000 at 10 MHz
 
 
 def build_stepper(cls, motor_cfg, clock):
@@ -179,7 +183,7 @@ def init_stepper(m, driver, encoder, steps, enable, clock, update_hz, rsense_ohm
     m._clock = clock or MonotonicClock()
     m._microsteps = 256 // steps.upp
     m._enc_conf = (encoder_slow_filter, encoder_fast_threshold)
-    m._vsense, m._cs_max = tmc.current_scale(rsense_ohm, full_scale_ma / 1000.0)
+    m._vsense, m._cs_max = current_scale(rsense_ohm, full_scale_ma / 1000.0)
     # The 1 kHz path is integers only (a float is a heap object on the board): the ramp runs
     # in whole ticks of `_tick_us`, speeds in Q16 usteps per tick, accelerations per tick^2.
     rate = int(update_hz)
@@ -225,3 +229,54 @@ def init_stepper(m, driver, encoder, steps, enable, clock, update_hz, rsense_ohm
     m._diff = m._clock.ticks_diff
     m.fault = None  # last UART error after begin(), for diagnostics
     m.faults = 0
+
+
+def begin_stepper(m):
+    """PicoStepper.begin (see there), run by the boot task."""
+    drv = m._drv
+    version = drv.read(tmc.IOIN) >> 24
+    if version != tmc.VERSION:
+        raise tmc.TMCError("TMC2209 at node %d reports version 0x%02x, expected 0x21"
+                           % (drv.node, version))
+    chop = chopconf(drv.read(tmc.CHOPCONF), m._microsteps, m._vsense)
+    m._pwmconf = tmc.pwmconf(drv.read(tmc.PWMCONF), tmc.FREEWHEEL_SHORT_LS)
+    before = drv.read(tmc.IFCNT)
+    writes = (
+        (tmc.GSTAT, 7),  # clear reset/error flags (write 1 to clear)
+        (tmc.GCONF, tmc.gconf(False)),
+        (tmc.CHOPCONF, chop),
+        (tmc.PWMCONF, m._pwmconf),
+        (tmc.TPOWERDOWN, tpowerdown(_POWERDOWN_S)),
+        (tmc.TPWMTHRS, tpwmthrs(_STEALTH_MAX)),
+        (tmc.IHOLD_IRUN, tmc.ihold_irun(m._ihold, m._irun)),
+    )
+    for reg, value in writes:
+        drv.write(reg, value)
+    counted = (drv.read(tmc.IFCNT) - before) & 0xFF
+    if counted != len(writes):
+        raise tmc.TMCError("TMC2209 accepted %d of %d configuration writes (IFCNT)"
+                           % (counted, len(writes)))
+    enc = m._enc
+    detected, weak, strong = decode_status(enc.status())
+    if not detected or weak or strong:
+        problem = "not detected" if not detected else "too weak" if weak else "too strong"
+        raise OSError("AS5600: magnet %s (check the magnet and its distance)" % problem)
+    enc.configure(m._enc_conf[0], m._enc_conf[1])
+    enc.start()
+    m._vel.reset()
+    m._steps.shift(-m._steps.position)
+    ramp = m._ramp
+    ramp.set_position(m._steps.commanded)
+    ramp.v = 0
+    ramp.mode = POSITIONING
+    ramp.xtarget = ramp.xactual()
+    ramp.vmax = 0  # the library leaves VMAX at 0 until the first motion call
+    ramp.amax = m._amax
+    ramp.dmax = m._dmax
+    m._closed_loop = False
+    m._error = 0
+    m._stopping = False
+    if m._enable is not None:
+        m._enable.value(0)
+    m._last_us = m._clock.ticks_us()
+    m._ready = True
