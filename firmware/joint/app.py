@@ -51,7 +51,8 @@ def build(machine, config_path=CONFIG_FILE, clock=None, write=None):
 # schema and checks, the Pico backend's defaults and validation, the register spec's objects, the
 # builders of the controller and its IRQ tables (about 28 KB of heap together). The running joint
 # keeps what it needs of them in settings.py's objects, regtable.RegisterTable and its own state.
-BOOT_ONLY = ("config", "core_init", "irq_init", "pico.motor_config", "pico.tmc2209_setup", "protocol")
+BOOT_ONLY = ("config", "core_init", "irq_init", "pico.motor_config", "pico.tmc2209_setup", "protocol",
+             "protocol_v2")
 
 
 def _drop_boot_only():

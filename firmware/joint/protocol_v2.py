@@ -135,21 +135,21 @@ def _crc_table():
     return bytes(table)
 
 
-_CRC_TABLE = _crc_table()
+CRC_TABLE = _crc_table()  # CRC-8/SMBUS of each byte value (v2.py keeps it past boot)
 
 
 def crc8(buf, start, end, crc=0):
     """CRC-8/SMBUS (poly 0x07, init 0, no reflection) of buf[start:end], continuing `crc`.
 
     Allocation-free, one table lookup per byte: the firmware runs it in its main loop."""
-    table = _CRC_TABLE
+    table = CRC_TABLE
     for i in range(start, end):
         crc = table[crc ^ buf[i]]
     return crc
 
 
 def crc8_byte(value, crc=0):
-    return _CRC_TABLE[crc ^ value]
+    return CRC_TABLE[crc ^ value]
 
 
 def mailbox_crc(buf, off, address):

@@ -21,7 +21,13 @@ Allocation-free once constructed (tests run it with the heap locked under MicroP
 import gc
 
 from .protocol import ANGLEMOVED, GETENCODERRPM, LASTERROR
-from . import protocol_v2 as V
+from .protocol_v2 import (  # numbers and tables only: the board forgets protocol_v2 after boot
+    CRC_TABLE, CMD_NONE, FROM_LEGACY, MAILBOX, MAILBOX_SIZE, MEM_SIZE, M_CMD, M_CRC, M_PAYLOAD,
+    M_SEQ, PAYLOAD_SIZE, POSITION_MAX, POSITION_Q, PROTOCOL_LEGACY, PROTOCOL_V2, REASON_COMMAND,
+    REASON_CRC, REASON_FRAME, REASON_OK, REASON_SEQUENCE, REASON_SHIFT, REASON_VALUE, SEQ_MASK,
+    SEQ_WINDOW, SILENCE_MS, STATE, STATE_SIZE, STATUS_FLAGS, STATUS_MARKER, S_ACK, S_CRC,
+    S_POSITION, S_VELOCITY, VELOCITY_MARKER, VELOCITY_MAX, VELOCITY_Q,
+)
 from .fixed import f32_to_q
 from .i2c_target import IRQ_END_WRITE
 from .irq import COUNTER_MASK  # counters wrap before they would become long ints
@@ -48,6 +54,24 @@ def f32_to_fixed(buf, off, q, limit):
     return value
 
 
+def _mailbox_crc(buf, address):
+    """protocol_v2.mailbox_crc of the mailbox at buf[0:] (its loop, over its table)."""
+    table = CRC_TABLE
+    crc = table[address << 1]
+    for i in range(M_CMD, M_CRC):
+        crc = table[crc ^ buf[i]]
+    return table[crc ^ buf[M_SEQ]]
+
+
+def _state_crc(buf, address):
+    """protocol_v2.state_crc of the state block at buf[0:]."""
+    table = CRC_TABLE
+    crc = table[(address << 1) | 1]
+    for i in range(STATE_SIZE - 1):
+        crc = table[crc ^ buf[i]]
+    return crc
+
+
 class MemLink:
     """Protocol v2 for one joint: create it, serve `mem` with an `I2CTarget(mem=..., mem_addrsize=0)`,
     then `attach` that target and its activity probe."""
@@ -58,23 +82,23 @@ class MemLink:
         self._irq_off, self._irq_on = critical
         self._bus_active = None
         self.target = None
-        self.mem = bytearray(V.MEM_SIZE)
+        self.mem = bytearray(MEM_SIZE)
         view = memoryview(self.mem)
-        self._mailbox = view[V.MAILBOX:V.MAILBOX + V.MAILBOX_SIZE]
-        self._state = view[V.STATE:V.STATE + V.STATE_SIZE]
-        self._empty = bytearray(V.MAILBOX_SIZE)
-        for i in range(V.MAILBOX_SIZE):
+        self._mailbox = view[MAILBOX:MAILBOX + MAILBOX_SIZE]
+        self._state = view[STATE:STATE + STATE_SIZE]
+        self._empty = bytearray(MAILBOX_SIZE)
+        for i in range(MAILBOX_SIZE):
             self._empty[i] = _EMPTY_CMD
-        self._empty[V.M_SEQ] = _EMPTY_SEQ
-        self._rx = bytearray(V.MAILBOX_SIZE)
+        self._empty[M_SEQ] = _EMPTY_SEQ
+        self._rx = bytearray(MAILBOX_SIZE)
         self._last = bytearray(self._empty)  # the last frame accepted (retries are ignored)
-        self._staged = bytearray(V.STATE_SIZE)
-        self._published = bytearray(V.STATE_SIZE)
-        self._seen_state = bytearray(V.STATE_SIZE)
-        self._frame = bytearray(1 + V.PAYLOAD_SIZE)
+        self._staged = bytearray(STATE_SIZE)
+        self._published = bytearray(STATE_SIZE)
+        self._seen_state = bytearray(STATE_SIZE)
+        self._frame = bytearray(1 + PAYLOAD_SIZE)
         self._mailbox[:] = self._empty
         self.ack = 0
-        self.verdict = V.REASON_OK
+        self.verdict = REASON_OK
         # Link statistics (the joint's side): every frame taken, and why each was not applied.
         self.writes = 0  # END_WRITE events (soft IRQ): frames, polls, probes
         self._seen_writes = 0
@@ -154,28 +178,28 @@ class MemLink:
     def _judge(self, overflow):
         rx = self._rx
         self.frames = (self.frames + 1) & COUNTER_MASK
-        if overflow or rx[V.M_SEQ] & _EMPTY_SEQ:
+        if overflow or rx[M_SEQ] & _EMPTY_SEQ:
             self.frame_errors = (self.frame_errors + 1) & COUNTER_MASK
-            self.verdict = V.REASON_FRAME
+            self.verdict = REASON_FRAME
             return
-        if V.mailbox_crc(rx, 0, self._address) != rx[V.M_CRC]:
+        if _mailbox_crc(rx, self._address) != rx[M_CRC]:
             self.crc_errors = (self.crc_errors + 1) & COUNTER_MASK
-            self.verdict = V.REASON_CRC
+            self.verdict = REASON_CRC
             return
-        ahead = (rx[V.M_SEQ] - self.ack) & V.SEQ_MASK
+        ahead = (rx[M_SEQ] - self.ack) & SEQ_MASK
         if ahead == 0 and rx == self._last:
             self.retries = (self.retries + 1) & COUNTER_MASK  # the host retried a transfer: applied once, verdict unchanged
             return
-        if ahead == 0 or ahead >= V.SEQ_WINDOW:
+        if ahead == 0 or ahead >= SEQ_WINDOW:
             self.sequence_errors = (self.sequence_errors + 1) & COUNTER_MASK
-            self.verdict = V.REASON_SEQUENCE
+            self.verdict = REASON_SEQUENCE
             return
-        self.ack = rx[V.M_SEQ]
+        self.ack = rx[M_SEQ]
         self._last[:] = rx
         self.verdict = self._apply(rx)
         self.applied_writes = self.writes
-        if self.verdict == V.REASON_OK:
-            if rx[V.M_CMD] == V.CMD_NONE:
+        if self.verdict == REASON_OK:
+            if rx[M_CMD] == CMD_NONE:
                 self.polls = (self.polls + 1) & COUNTER_MASK
             else:
                 self.applied = (self.applied + 1) & COUNTER_MASK
@@ -183,42 +207,42 @@ class MemLink:
             self.rejected = (self.rejected + 1) & COUNTER_MASK
 
     def _apply(self, rx):
-        cmd = rx[V.M_CMD]
-        if cmd == V.CMD_NONE:
-            return V.REASON_OK
+        cmd = rx[M_CMD]
+        if cmd == CMD_NONE:
+            return REASON_OK
         n = self._core.registers.command_size(cmd)
         if n == NOT_A_COMMAND:
-            return V.REASON_COMMAND
-        for i in range(V.M_PAYLOAD + n, V.M_PAYLOAD + V.PAYLOAD_SIZE):
+            return REASON_COMMAND
+        for i in range(M_PAYLOAD + n, M_PAYLOAD + PAYLOAD_SIZE):
             if rx[i]:
-                return V.REASON_VALUE  # the padding must be zero
+                return REASON_VALUE  # the padding must be zero
         frame = self._frame
         frame[0] = cmd
         for i in range(n):
-            frame[1 + i] = rx[V.M_PAYLOAD + i]
+            frame[1 + i] = rx[M_PAYLOAD + i]
         core = self._core
         before = core.rejects
         core.on_frame(frame, 1 + n)
         if core.rejects == before:
-            return V.REASON_OK
-        return V.FROM_LEGACY[core.cached_reply(LASTERROR)[0]]
+            return REASON_OK
+        return FROM_LEGACY[core.cached_reply(LASTERROR)[0]]
 
     def _pack(self):
         core = self._core
         out = self._staged
-        out[0] = (V.STATUS_MARKER | (self.verdict << V.REASON_SHIFT)
-                  | (core.flags & V.STATUS_FLAGS))
-        pos = f32_to_fixed(core.cached_reply(ANGLEMOVED), 0, V.POSITION_Q, V.POSITION_MAX)
-        vel = f32_to_fixed(core.cached_reply(GETENCODERRPM), 0, V.VELOCITY_Q, V.VELOCITY_MAX)
-        p = V.S_POSITION - V.STATE
+        out[0] = (STATUS_MARKER | (self.verdict << REASON_SHIFT)
+                  | (core.flags & STATUS_FLAGS))
+        pos = f32_to_fixed(core.cached_reply(ANGLEMOVED), 0, POSITION_Q, POSITION_MAX)
+        vel = f32_to_fixed(core.cached_reply(GETENCODERRPM), 0, VELOCITY_Q, VELOCITY_MAX)
+        p = S_POSITION - STATE
         out[p] = pos & 0xFF
         out[p + 1] = (pos >> 8) & 0xFF
         out[p + 2] = (pos >> 16) & 0xFF
-        v = V.S_VELOCITY - V.STATE
+        v = S_VELOCITY - STATE
         out[v] = vel & 0xFF
-        out[v + 1] = V.VELOCITY_MARKER | ((vel >> 8) & 0x7F)
-        out[V.S_ACK - V.STATE] = self.ack
-        out[V.S_CRC - V.STATE] = V.state_crc(out, 0, self._address)
+        out[v + 1] = VELOCITY_MARKER | ((vel >> 8) & 0x7F)
+        out[S_ACK - STATE] = self.ack
+        out[S_CRC - STATE] = _state_crc(out, self._address)
 
 
 def _make_room():
@@ -249,7 +273,7 @@ class ProtocolSwitch:
         self._legacy_adapter = legacy_adapter
         self._critical = critical
         self._bus_active_for = bus_active_for
-        self.protocol = V.PROTOCOL_LEGACY
+        self.protocol = PROTOCOL_LEGACY
         self._request = 0  # a protocol the host asked for, not served yet
         self._request_writes = -1
         self.switches = 0
@@ -279,9 +303,9 @@ class ProtocolSwitch:
         if link is not None:
             link.poll()
             silent = core.clock.ticks_diff(core.clock.ticks_ms(), link.last_write_ms)
-            if silent > V.SILENCE_MS and not self._bus_active():
+            if silent > SILENCE_MS and not self._bus_active():
                 core.log.warn("v2 host silent for %d ms: serving the legacy map" % silent)
-                self._switch(V.PROTOCOL_LEGACY)
+                self._switch(PROTOCOL_LEGACY)
 
     def _leave(self):
         if self.link is not None:
@@ -295,7 +319,7 @@ class ProtocolSwitch:
     def _switch(self, protocol):
         # Allocate while the old target still serves: a garbage collection between leaving the
         # bus and joining it again (tens of ms on the chip) would NAK the host meanwhile.
-        link = MemLink(self._core, self._address, self._critical) if protocol == V.PROTOCOL_V2 else None
+        link = MemLink(self._core, self._address, self._critical) if protocol == PROTOCOL_V2 else None
         _make_room()
         self._leave()
         if link is not None:
@@ -314,7 +338,7 @@ class ProtocolSwitch:
         self.protocol = protocol
         self._request = 0
         self.switches += 1
-        self._core.log.info("serving protocol %s" % ("v2" if protocol == V.PROTOCOL_V2 else "legacy"))
+        self._core.log.info("serving protocol %s" % ("v2" if protocol == PROTOCOL_V2 else "legacy"))
 
     def deinit(self):
         self._leave()
