@@ -3,7 +3,7 @@ joint is built; the controller keeps only the state it made."""
 
 import struct
 
-from .fixed import STEPS_Q, to_q
+from .fixed import ANGLE_Q, STEPS_Q, to_q
 from .homing import HomingMonitor
 from .irq_init import init as init_irq
 from .protocol import (
@@ -124,4 +124,27 @@ def init(core, hal, clock, cfg, log, critical):
         core.flags = FLAGS_AT_BOOT
         core.ready = True
     else:
-        core._start_task("boot", core._boot())
+        core._start_task("boot", _boot(core))
+
+
+def _boot(core):
+    """The boot task, the original setup(): closed loop, boot limits, orientation check, then
+    freewheel. This generator is the last holder of this module: it goes once the task ends."""
+    hal = core.hal
+    boot = core.cfg.boot
+    hal.begin()
+    hal.enable_closed_loop()
+    core.closed_loop = True
+    accel = to_q(boot.max_acceleration, STEPS_Q)
+    hal.set_max_acceleration(accel)
+    hal.set_max_deceleration(accel)
+    hal.set_max_velocity(to_q(boot.max_velocity, STEPS_Q))
+    hal.set_control_threshold(to_q(boot.control_threshold, 0))
+    yield from core._orientation(to_q(boot.orientation_check, ANGLE_Q))
+    hal.stop(True)
+    hal.set_current(0)
+    hal.set_hold_current(0)
+    hal.set_brake_mode(0)
+    core._set_flags(FLAGS_AT_BOOT)
+    core.ready = True
+    core.log.info("%s ready at 0x%02x" % (core.cfg.joint, core.cfg.address))

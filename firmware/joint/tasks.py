@@ -1,12 +1,13 @@
-"""The joint core's blocking commands: boot, HOME and CHECKORIENTATION as generator tasks.
+"""The joint core's blocking commands: HOME and CHECKORIENTATION as generator tasks (the boot task
+is core_init.py's).
 
 A task holds BUSY while it runs; the main loop steps it when its wait is over (each `yield` says
 how many milliseconds to wait) or a STOP cancelled it.
 """
 
-from .fixed import ANGLE_Q, RPM_Q, STEPS_Q, muldiv, store_q, to_q
+from .fixed import ANGLE_Q, RPM_Q, muldiv, store_q
 from .homing import HOMED, OUTCOMES, RUNNING
-from .protocol import FLAG_BUSY, FLAG_NOTHOMED, FLAG_STALL, FLAGS_AT_BOOT, HOMINGTRAVEL
+from .protocol import FLAG_BUSY, FLAG_NOTHOMED, FLAG_STALL, HOMINGTRAVEL
 from .tracking import wrapped_diff
 
 try:
@@ -73,27 +74,6 @@ class Tasks:
         else:
             task.close()
         self._end_task()
-
-    def _boot(self):
-        """The original setup(): closed loop, boot limits, orientation check, then freewheel."""
-        hal = self.hal
-        boot = self.cfg.boot
-        hal.begin()
-        hal.enable_closed_loop()
-        self.closed_loop = True
-        accel = to_q(boot.max_acceleration, STEPS_Q)
-        hal.set_max_acceleration(accel)
-        hal.set_max_deceleration(accel)
-        hal.set_max_velocity(to_q(boot.max_velocity, STEPS_Q))
-        hal.set_control_threshold(to_q(boot.control_threshold, 0))
-        yield from self._orientation(to_q(boot.orientation_check, ANGLE_Q))
-        hal.stop(True)
-        hal.set_current(0)
-        hal.set_hold_current(0)
-        hal.set_brake_mode(0)
-        self._set_flags(FLAGS_AT_BOOT)
-        self.ready = True
-        self.log.info("%s ready at 0x%02x" % (self.cfg.joint, self.cfg.address))
 
     def _wait_reached(self):
         """Wait for a positioning move; False on timeout or when a STOP cancelled the task."""
