@@ -157,7 +157,7 @@ def _compiler(board: BoardInfo, line_numbers: bool = False) -> tuple[Callable[[b
     """A source -> .mpy function for `board` and a description, or None and why not.
 
     Without `line_numbers` the code is compiled with -O3: no source line tables (a traceback
-    then names the file and function but not the line), which the board would otherwise load
+    then names the file and function, every frame at line 1), which the board would otherwise load
     into its heap with the code (about 0.7 KB for the joint). -O3 also drops `assert` statements
     and makes `__debug__` False; the firmware uses neither (tests/test_flash.py checks)."""
     binary = mpy_cross_binary()
