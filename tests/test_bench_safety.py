@@ -136,6 +136,21 @@ def test_a_perturbed_cost_table_scales_clock_stretching_and_makes_loop_iteration
     assert max(periods) - min(periods) > 300  # not one constant period
 
 
+def test_a_soft_contact_force_is_the_obstacle_spring_at_most_the_motor_can_push() -> None:
+    """The force figure against the quasi-static estimate (bench/contact_bounds.py): a soft
+    contact the motor overpowers is pressed to about its pull-out force, no further."""
+    if not S._available("tracking"):
+        pytest.skip("no tracking detector in this firmware")
+    sys.path.insert(0, str(pathlib.Path(S.__file__).parent))
+    import contact_bounds as B
+    r = S.collision(S.Collision("J4", 120.0, "soft", False, "nominal", "tracking"))
+    _, _, _, pull_out_n, _, _ = B.bounds("J4", 120.0, "soft")
+    assert r["detected"] and 0.7 * pull_out_n <= r["force_n"] <= 1.3 * pull_out_n, (r, pull_out_n)
+    figures = dict(S.figures([(S.Collision("J4", 120.0, "soft", False, "nominal", "tracking"), r)], ["tracking"]))
+    assert figures["safety.soft_contact_force_n_max"] == r["force_n"]
+    assert figures["safety.soft_contacts_over_iso_limit"] == (r["force_n"] > M.ISO_ABDOMEN_N)
+
+
 def test_a_homing_sensitivity_within_the_noise_floor_counts_as_refused_not_failed(reduced) -> None:
     results, _ = reduced
     r = _result(results, S.Homing("J1", False, "harsh", "rigid", sensitivity=15))
