@@ -3,16 +3,27 @@ simulated arm's mechanics (firmware/joint/sim/mechanics.py), so they come from a
 
 Stall detector (tracking.py: stalled when lag > base + min(|field speed| * tau, cap), the lag taken
 net of `slope` per ustep of travel): run the real firmware through unobstructed motion at the
-joint's configured acceleration -- velocity steps to 10 rpm .. top speed and back through
-reversals, position moves at top speed, a streamed trajectory -- with nominal and harsh TLE5012B
-noise and the Pico backend's AS5600 (the shipped configs drive a Pico), without and with the
-joint's payload corner, on seeds the benchmark does not use, and record every sample the
-firmware's detector is fed (field and encoder usteps). Then replay the recording through the
-detector for each slope (0..SLOPE_MAX/256), confirm (CONFIRMS samples) and tau (0..20 ms): base and
-cap cover MARGIN x every lag seen held over `confirm` samples in a row, and the set kept is the one
-that detects a blocked rotor soonest at 10 and 30 rpm (the lag of a blocked rotor grows by
-1 - slope per ustep of field, then `confirm` samples). Phases in which the motor really lost position are reported and left
-out (the detector is right to stop those).
+joint's configured acceleration and record every sample the firmware's detector is fed (field and
+encoder usteps). The motion set: velocity steps to 10 rpm .. top speed and back through reversals,
+short position moves at top speed, a streamed trajectory (a new velocity every 20 ms), and the
+benchmark's own free motion (bench/safety.py: its long position moves, e.g. 9000 motor degrees and
+back on J2, and its streamed sine with the full-speed reversal at its end, polled as it polls). It
+runs with nominal and harsh TLE5012B noise and the Pico backend's AS5600, without and with the
+joint's payload corner, on SEEDS (the benchmark runs seed 1, so it checks the constants on noise they
+were not derived from), and on every cost table of TABLES: the measured one
+(firmware/joint/sim/chip_costs.json) and variants with the chip's clock stretching x0.3 and x1.5
+and with loop-period jitter (each main-loop iteration up to 500 us late) -- the bus timing moves
+the instants at which the detector samples, and the constants must not depend on it.
+
+Then replay the recording through the detector for each slope, confirm (CONFIRMS samples) and tau
+(0..20 ms). The slope is at least SLOPE_MIN, the largest rate at which the datasheet's harmonic
+error (1x and 2x per revolution, harsh corner) can change the reading per ustep turned: the error
+then cannot build up over a long move, whichever phases of the revolution the samples happen to
+fall on. Base and cap cover MARGIN x every lag seen held over `confirm` samples in a row (and at
+least MIN_BASE), and the set kept is the one that detects a blocked rotor soonest at 10 and 30 rpm
+(the lag of a blocked rotor grows by 1 - slope per ustep of field, then `confirm` samples). Phases
+in which the motor really lost position are reported and left out (the detector is right to stop
+those). The largest free lag is printed per cost table: the margin left on each.
 
 Quick stop: the largest deceleration (full steps/s^2, at most the driver's 11636) from which the
 joint stops at top speed without losing position (no pole slip in the simulator),
@@ -24,15 +35,19 @@ times 0.8.
 
 import json
 import math
+import multiprocessing
 import os
 import sys
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path[:0] = [os.path.join(HERE, "..", "firmware"), os.path.join(HERE, "..", "firmware", "tests")]
 
+import numpy as np  # noqa: E402
+import safety as bench  # noqa: E402 -- the benchmark's free motion, to derive on it too
 from harness import SimRig  # noqa: E402
 from joint.fixed import STEPS_Q, to_q  # noqa: E402
 from joint.sim import mechanics  # noqa: E402
+from joint.sim.chip import ChipCosts  # noqa: E402
 from joint.tracking import TrackingDetector  # noqa: E402
 
 # The arm's configured motion (host/bioscara/data/default.toml) on the motor side.
@@ -46,14 +61,25 @@ JOINTS = {  # top speed rpm, acceleration motor deg/s^2, drive current %, stall 
 PAYLOAD = {"J1": 0.2, "J2": 1.0, "J3": 0.2, "J4": 0.2}
 # Simulator seeds of the derivation; bench/safety.py runs seed 1, so it checks the constants on
 # noise they were not derived from.
-SEEDS = (2, 3)
-MARGIN = 2.0
+SEEDS = (2, 3, 4)
+MEASURED = ChipCosts.load()
+TABLES = {  # name: the chip's costs (clock stretching per transaction, main-loop period)
+    "measured": MEASURED,
+    "SCL x0.3": MEASURED.perturbed(scl_scale=0.3),
+    "SCL x1.5": MEASURED.perturbed(scl_scale=1.5),
+    "loop jitter 500 us": MEASURED.perturbed(loop_jitter_us=500.0),
+}
+MARGIN = 2.0  # on every free lag: room for seeds, phases and timings the derivation did not run
 SATURATE = False  # cap the speed allowance at the largest lag seen (lower thresholds, less margin)
 MIN_BASE = 128  # half a full step: room for what the simulator leaves out (detent torque ripple)
 SAMPLE_MS = 5
 CONFIRMS = (2, 3, 4)  # samples in a row over the threshold: the search's choices
 WINDOW = 64  # samples: at 10 rpm the lag can grow by 2700 usteps within it
-SLOPE_MAX = 32  # /256 usteps of encoder error per ustep of travel (the datasheet harmonics need ~10)
+SLOPE_MAX = 32  # /256 usteps of encoder error per ustep of travel
+# The harmonic error a1*sin(x + p1) + a2*sin(2x + p2) (deg) changes the reading by at most
+# (a1 + 2*a2) * pi/180 per unit of rotor angle: Q8, rounded up, over every encoder and noise corner.
+SLOPE_MIN = max(int(math.ceil((a1 + 2.0 * a2) * math.pi / 180.0 * 256.0))
+                for enc in mechanics.ENCODERS.values() for a1, a2 in enc["harmonics"].values())
 DRIVER_MAX_DECEL = 11636.0
 
 
@@ -73,11 +99,12 @@ class _Recorder(TrackingDetector):
         super().reset()
 
 
-def _rig(joint, noise, seed, payload_kg=0.0):
-    """noise: "nominal" | "harsh" (TLE5012B) | "as5600" (the Pico backend's 12-bit encoder)."""
+def _rig(joint, noise, seed, payload_kg=0.0, table="measured"):
+    """noise: "nominal" | "harsh" (TLE5012B) | "as5600" (the Pico backend's 12-bit encoder);
+    table: a name of TABLES."""
     encoder = "as5600" if noise == "as5600" else "tle5012b"
     kwargs = mechanics.stepper_kwargs(joint, payload_kg, "nominal" if noise == "as5600" else noise, encoder)
-    rig = SimRig(joint, seed=seed, **kwargs)
+    rig = SimRig(joint, seed=seed, chip=TABLES[table], **kwargs)
     top, accel, current, sensitivity = JOINTS[joint]
     rig.enable(current=current, sensitivity=sensitivity, accel_deg=accel, vel_deg=top * 6.0)
     core = rig.joint.core
@@ -86,24 +113,25 @@ def _rig(joint, noise, seed, payload_kg=0.0):
     return rig
 
 
-LOSSES = []  # (joint, phase): the motor lost position there, a real stall, not free motion
-
-
-def _record(rig, seconds, out, phase=""):
-    """Run `seconds` as one phase of the motion set: `out` gets (first, end) of the samples the
-    detector was fed in it, unless the motor lost position (slipped a pole) at any time in it."""
+def _record(rig, seconds, out, losses, phase="", poll_ms=SAMPLE_MS):
+    """Run `seconds` as one phase of the motion set, the host pinging every `poll_ms` (None:
+    silent): `out` gets (first, end) of the samples the detector was fed in it, unless the motor
+    lost position (slipped a pole) at any time in it (then `losses` gets the phase)."""
     core = rig.joint.core
     before = rig.stepper.slipped_periods()  # the simulator's own count of pole slips
     first = len(core.track.fed)
-    t_end = rig.clock.seconds() + seconds
+    t_end = rig.clock.now_us + int(seconds * 1e6)
+    next_poll = rig.clock.now_us
     slipped = False
-    while rig.clock.seconds() < t_end:
+    while rig.clock.now_us < t_end:
         rig.bus.sleep(SAMPLE_MS / 1000.0)
-        rig.ping()
+        if poll_ms is not None and rig.clock.now_us >= next_poll:
+            rig.ping()
+            next_poll = rig.clock.now_us + poll_ms * 1000
         # Every sample: a rotor can slip a pole and slip back within one phase.
         slipped = slipped or rig.stepper.slipped_periods() != before
     if slipped:
-        LOSSES.append((rig.joint.cfg.joint, phase))
+        losses.append(phase)
         core.track.reset()  # the live detector would have stopped here: its history ends
         rig.command("SETUP", *JOINTS[rig.joint.cfg.joint][2:3] * 2, 0, 0)  # re-synchronise
         rig.command("ENABLESTALLGUARD", JOINTS[rig.joint.cfg.joint][3])
@@ -111,58 +139,87 @@ def _record(rig, seconds, out, phase=""):
         out.append((first, len(core.track.fed)))
 
 
-def free_motion(joint, noise, seed, payload_kg=0.0):
-    """(what the detector was fed, the (first, end) sample ranges of the free phases) through the
+def free_motion(args):
+    """args (joint, noise, seed, payload_kg, table) -> (what the detector was fed, the (first, end)
+    sample ranges of the free phases, the phases in which the motor lost position) through the
     unobstructed motion set."""
+    joint, noise, seed, payload_kg, table = args
     top, accel, _, _ = JOINTS[joint]
     phases = []
-    rig = _rig(joint, noise, seed, payload_kg)
+    losses = []
+    rig = _rig(joint, noise, seed, payload_kg, table)
     for rpm in (10.0, 30.0, 100.0, 300.0, top):
         rpm = min(rpm, top)
         ramp = 2.0 * rpm * 6.0 / accel + 0.3
         rig.command("SETRPM", rpm)
-        _record(rig, ramp, phases, "to %g rpm" % rpm)
+        _record(rig, ramp, phases, losses, "to %g rpm" % rpm)
         rig.command("SETRPM", -rpm)  # a reversal at the configured acceleration
-        _record(rig, ramp, phases, "reversal at %g rpm" % rpm)
+        _record(rig, ramp, phases, losses, "reversal at %g rpm" % rpm)
         rig.command("SETRPM", 0.0)
-        _record(rig, ramp / 2.0, phases, "stop from %g rpm" % rpm)
+        _record(rig, ramp / 2.0, phases, losses, "stop from %g rpm" % rpm)
     short = top * 6.0 * 0.5
     for target in (short, -short, 0.0):
         rig.command("MOVETOANGLE", target)
-        _record(rig, 1.5 + 2.0 * top * 6.0 / accel, phases, "move to %g deg" % target)
+        _record(rig, 1.5 + 2.0 * top * 6.0 / accel, phases, losses, "move to %g deg" % target)
     for k in range(150):  # a streamed trajectory: a new velocity every 20 ms
         rig.command("SETRPM", 0.5 * top * math.sin(2.0 * math.pi * k / 75.0))
-        _record(rig, 0.02, phases, "streamed trajectory")
+        _record(rig, 0.02, phases, losses, "streamed trajectory")
     rig.command("SETRPM", 0.0)
-    return rig.joint.core.track.fed, phases
+    _record(rig, 0.5, phases, losses, "stop")
+    # The benchmark's free motion (bench/safety.py free_move), with its polling.
+    c = bench.CONFIG[joint]
+    span = math.degrees(bench.TRAVEL[joint] * c["n"])
+    t_move = span / math.degrees(c["vel"] * c["n"]) + 2 * c["vel"] / c["acc"] + 0.5
+    for target in (span, -span, span * 0.1, 0.0):
+        rig.command("MOVETOANGLE", target)
+        _record(rig, t_move, phases, losses, "long move to %g deg" % target, poll_ms=20)
+    for i in range(150):
+        rig.command("SETRPM", 0.6 * top * math.sin(2 * math.pi * 0.7 * i * 0.02))
+        _record(rig, 0.02, phases, losses, "streamed sine", poll_ms=None)
+    for rpm in (top, -top, 0.0):
+        rig.command("SETRPM", rpm)
+        _record(rig, 2.0 * top * 6.0 / accel + 0.3, phases, losses, "step to %g rpm" % rpm, poll_ms=20)
+    return rig.joint.core.track.fed, phases, losses
 
 
-def replay(runs, slope, confirm):
-    """(lag, |field usteps per sample|) of every run of `confirm` samples in a row of the free phases
-    with which the detector with `slope` could trip, by its smallest lag and speed (it trips only
-    if all of them are over the threshold; ringing of the transmission cannot make them all high).
-    Each recording replays in one piece, as the firmware ran it."""
-    out = []
-    for fed, phases in runs:
+def replay(runs, slope):
+    """(lag, |field usteps per sample|, judged) per sample of every run, replayed through the
+    detector with `slope`: judged is 1 where the detector compared (the field moved) in a free
+    phase, 0 elsewhere, and one 0 separates the runs. Each recording replays in one piece, as the
+    firmware ran it."""
+    lags, speeds, judged = [], [], []
+    for fed, phases, _ in runs:
         free = bytearray(len(fed))
         for first, end in phases:
             free[first:end] = b"\x01" * (end - first)
-        det = TrackingDetector(10 ** 8, 0, WINDOW, confirm, SAMPLE_MS, slope_q8=slope)
-        seen = []
+        det = TrackingDetector(10 ** 8, 0, WINDOW, 1, SAMPLE_MS, slope_q8=slope)
         for i, sample in enumerate(fed):
             if sample is None:
                 det.reset()
-                seen = []
+                lags.append(0)
+                speeds.append(0)
+                judged.append(0)
                 continue
             det.update(*sample)
-            if det.speed and free[i]:
-                seen.append((det.lag, abs(det.speed)))
-            else:
-                seen = []
-            if len(seen) >= confirm:
-                run = seen[-confirm:]
-                out.append((min(lag for lag, _ in run), min(speed for _, speed in run)))
-    return out
+            lags.append(det.lag)
+            speeds.append(abs(det.speed))
+            judged.append(1 if det.speed and free[i] else 0)
+        lags.append(0)
+        speeds.append(0)
+        judged.append(0)
+    return np.array(lags, float), np.array(speeds, float), np.array(judged, bool)
+
+
+def held(trace, confirm):
+    """(lag, speed) of every run of `confirm` judged samples in a row, by its smallest lag and
+    speed: the detector trips only if all of them are over the threshold (ringing of the
+    transmission cannot make them all high)."""
+    lags, speeds, judged = trace
+    if len(lags) < confirm:
+        return np.zeros(0), np.zeros(0)
+    window = np.lib.stride_tricks.sliding_window_view
+    ok = window(judged, confirm).all(axis=1)
+    return window(lags, confirm).min(axis=1)[ok], window(speeds, confirm).min(axis=1)[ok]
 
 
 def fit(runs):
@@ -172,12 +229,13 @@ def fit(runs):
     base; the time to detect is the samples the lag of a blocked rotor, growing by (1 - slope) x the
     field's travel per sample, takes to pass the threshold, plus `confirm` samples."""
     best = None
-    for confirm in CONFIRMS:
-        for slope in range(0, SLOPE_MAX + 1, 2):
-            samples = replay(runs, slope, confirm)
-            worst = max(MARGIN * lag for lag, _ in samples)
+    for slope in range(SLOPE_MIN, SLOPE_MAX + 1, 2):
+        trace = replay(runs, slope)
+        for confirm in CONFIRMS:
+            lag, speed = held(trace, confirm)
+            worst = MARGIN * float(lag.max())
             for tau in range(0, 21):
-                base = max(MIN_BASE, max(int(MARGIN * lag - speed * tau / SAMPLE_MS) + 1 for lag, speed in samples))
+                base = max(MIN_BASE, int(np.floor((MARGIN * lag - speed * tau / SAMPLE_MS).max())) + 1)
                 cap = max(0, int(worst - base) + 1) if SATURATE else 1000000
                 cost = 0.0
                 for rpm in (10.0, 30.0):
@@ -208,23 +266,44 @@ def stop_deceleration(joint):
     return round(0.8 * decel)
 
 
+def cases(joint):
+    """Every (joint, noise, seed, payload_kg, table) the derivation runs."""
+    return [(joint, noise, seed, payload, table) for noise in ("nominal", "harsh", "as5600") for seed in SEEDS
+            for payload in (0.0, PAYLOAD[joint]) for table in TABLES]
+
+
+def largest_lag(runs, slope, confirm):
+    lag, _ = held(replay(runs, slope), confirm)
+    return int(lag.max()) if len(lag) else 0
+
+
 def main(argv):
     results = {}
+    losses = {}
+    processes = 1 if "-j1" in argv else min(2, os.cpu_count() or 1)
     for joint in JOINTS:
-        runs = [free_motion(joint, noise, seed, payload) for noise in ("nominal", "harsh", "as5600")
-                for seed in SEEDS for payload in (0.0, PAYLOAD[joint])]
+        todo = cases(joint)
+        if processes > 1:
+            with multiprocessing.get_context("fork").Pool(processes) as pool:
+                runs = pool.map(free_motion, todo, chunksize=1)
+        else:
+            runs = [free_motion(case) for case in todo]
+        losses[joint] = sorted({phase for _, _, lost in runs for phase in lost})
         base, tau, cap, slope, confirm, worst = fit(runs)
         decel = stop_deceleration(joint)
         results[joint] = {"track_base": base, "track_tau_ms": tau, "track_cap": cap, "track_slope_q8": slope,
                           "track_confirm": confirm, "stop_deceleration": float(decel)}
-        print("%s: %d free phases, largest free lag %d usteps net of the slope -> track_base %d, track_tau_ms %d, "
-              "track_cap %d, track_slope_q8 %d, track_confirm %d; stop_deceleration %d full steps/s^2"
-              % (joint, sum(len(p) for _, p in runs), worst, base, tau, cap, slope, confirm, decel))
+        print("%s: %d runs, %d free phases, largest free lag %d usteps net of the slope -> track_base %d, "
+              "track_tau_ms %d, track_cap %d, track_slope_q8 %d, track_confirm %d; stop_deceleration %d "
+              "full steps/s^2" % (joint, len(runs), sum(len(p) for _, p, _ in runs), worst, base, tau, cap, slope,
+                                  confirm, decel))
+        for table in TABLES:  # the margin left on each cost table (the speed allowance aside)
+            mine = [run for case, run in zip(todo, runs) if case[4] == table]
+            print("  %s: largest free lag %d usteps (base %d)" % (table, largest_lag(mine, slope, confirm), base))
     for joint in JOINTS:
-        lost = [phase for j, phase in LOSSES if j == joint]
-        if lost:
-            print("%s lost position in %d phases (real stalls, excluded): %s"
-                  % (joint, len(lost), ", ".join(sorted(set(lost)))))
+        if losses[joint]:
+            print("%s lost position in %d kinds of phase (real stalls, excluded): %s"
+                  % (joint, len(losses[joint]), ", ".join(losses[joint])))
     if "--write" in argv:
         for joint, values in results.items():
             path = os.path.join(HERE, "..", "firmware", "joint", "configs", joint + ".json")

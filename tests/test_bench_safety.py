@@ -86,6 +86,71 @@ def test_the_tracking_detector_stops_a_slow_rigid_collision_right_after_the_moto
     assert r["slip_ms"] == r["slip_ms"] and r["latency_ms"] - r["slip_ms"] <= 50.0, r
 
 
+def test_unobstructed_moves_raise_no_stall(reduced) -> None:
+    results, available = reduced
+    if "tracking" not in available:
+        pytest.skip("no tracking detector in this firmware")
+    free = [(s, r) for s, r in results if isinstance(s, S.FreeMove) and s.detector == "tracking"]
+    assert S.FreeMove("J2", "moves", False, "harsh", "tracking") in [s for s, _ in free]
+    assert all(r["false_stalls"] == 0 for _, r in free), free
+
+
+@pytest.mark.parametrize("scl_scale, jitter_us", [(0.3, 0.0), (1.5, 0.0), (0.7, 250.0)])
+def test_the_long_harsh_moves_raise_no_stall_on_a_faster_or_slower_chip(monkeypatch, scl_scale, jitter_us) -> None:
+    """The constants must not hang on one cost table: the bus timing moves the detector's samples."""
+    if not S._available("tracking"):
+        pytest.skip("no tracking detector in this firmware")
+    monkeypatch.setattr(S, "CHIP", S.default_costs().perturbed(scl_scale=scl_scale, loop_jitter_us=jitter_us))
+    for payload in (False, True):
+        r = S.free_move(S.FreeMove("J2", "moves", payload, "harsh", "tracking"))
+        assert r["false_stalls"] == 0, (payload, r)
+
+
+class _Ticking:
+    """A joint on the simulated bus that only counts its main-loop iterations' times."""
+
+    class cfg:
+        address = 0x10
+
+    online = True
+
+    def __init__(self, clock) -> None:
+        self.clock = clock
+        self.ticks: list[int] = []
+
+    def tick(self) -> None:
+        self.ticks.append(self.clock.now_us)
+
+
+def test_a_perturbed_cost_table_scales_clock_stretching_and_makes_loop_iterations_late() -> None:
+    measured = S.default_costs()
+    slow = measured.perturbed(scl_scale=1.5, loop_jitter_us=500.0)
+    reg = S.P.register("PING").addr
+    assert slow.scl_held_us(reg, False) == pytest.approx(1.5 * measured.scl_held_us(reg, False))
+    assert slow.loop_us == measured.loop_us and measured.loop_jitter_us == 0.0
+    clock = S.VirtualClock()
+    joint = _Ticking(clock)
+    S.SimJointBus(clock, (joint,), chip=slow).sleep(1.0)
+    periods = [b - a for a, b in zip(joint.ticks, joint.ticks[1:])]
+    assert min(periods) >= int(measured.loop_us) and max(periods) <= measured.loop_us + 501
+    assert max(periods) - min(periods) > 300  # not one constant period
+
+
+def test_a_soft_contact_force_is_the_obstacle_spring_at_most_the_motor_can_push() -> None:
+    """The force figure against the quasi-static estimate (bench/contact_bounds.py): a soft
+    contact the motor overpowers is pressed to about its pull-out force, no further."""
+    if not S._available("tracking"):
+        pytest.skip("no tracking detector in this firmware")
+    sys.path.insert(0, str(pathlib.Path(S.__file__).parent))
+    import contact_bounds as B
+    r = S.collision(S.Collision("J4", 120.0, "soft", False, "nominal", "tracking"))
+    _, _, _, pull_out_n, _, _ = B.bounds("J4", 120.0, "soft")
+    assert r["detected"] and 0.7 * pull_out_n <= r["force_n"] <= 1.3 * pull_out_n, (r, pull_out_n)
+    figures = dict(S.figures([(S.Collision("J4", 120.0, "soft", False, "nominal", "tracking"), r)], ["tracking"]))
+    assert figures["safety.soft_contact_force_n_max"] == r["force_n"]
+    assert figures["safety.soft_contacts_over_iso_limit"] == (r["force_n"] > M.ISO_ABDOMEN_N)
+
+
 def test_a_homing_sensitivity_within_the_noise_floor_counts_as_refused_not_failed(reduced) -> None:
     results, _ = reduced
     r = _result(results, S.Homing("J1", False, "harsh", "rigid", sensitivity=15))

@@ -172,10 +172,10 @@ class Xorshift:
 class SimRig:
     """One joint running the real firmware on the simulated stepper, on a simulated bus."""
 
-    def __init__(self, joint="J1", low_deg=None, high_deg=None, seed=1, mechanics=None, **stepper_kwargs):
+    def __init__(self, joint="J1", low_deg=None, high_deg=None, seed=1, mechanics=None, chip=None, **stepper_kwargs):
         """`mechanics`: None for the bare motor model (ustepper-model.md 8.3 defaults), or a dict of
         joint.sim.mechanics.stepper_kwargs() options ({} = the arm's nominal joint); explicit
-        stepper_kwargs override either."""
+        stepper_kwargs override either. `chip`: the bus's cost table (None: the repository's)."""
         from joint.sim import mechanics as arm
         from joint.sim.bus import SimJointBus
         from joint.sim.joint import make_joint
@@ -189,7 +189,7 @@ class SimRig:
         self.stepper.set_end_stops(low_deg, high_deg)
         self.lines = []
         self.joint = make_joint(joint, self.clock, self.stepper, write=self.lines.append)
-        self.bus = SimJointBus(self.clock, (self.joint,))
+        self.bus = SimJointBus(self.clock, (self.joint,), chip=chip)
         self.addr = self.joint.cfg.address
         assert self.bus.boot(), "joint did not finish booting"
 

@@ -34,6 +34,7 @@ class SimJointBus:
         self._next = []  # per joint: time of its next main-loop iteration (us, float)
         self._iterations = []
         self._fraction_us = 0.0
+        self._jitter = 0x2545F491  # LCG state of the loop-period jitter (chip.loop_jitter_us)
         self.bits = 0
         self.stretch_us = 0.0
         self.transactions = 0
@@ -63,6 +64,7 @@ class SimJointBus:
         period = self.chip.loop_us
         gc_every = self.chip.gc_every
         gc_pause = self.chip.gc_pause_us
+        jitter = self.chip.loop_jitter_us
         count = len(nxt)
         while count:
             i = 0
@@ -78,7 +80,11 @@ class SimJointBus:
             self.joints[i].tick()
             n = self._iterations[i] + 1
             self._iterations[i] = n
-            nxt[i] = t + period + (gc_pause if gc_every and n % gc_every == 0 else 0.0)
+            late = gc_pause if gc_every and n % gc_every == 0 else 0.0
+            if jitter:
+                self._jitter = (self._jitter * 1103515245 + 12345) & 0x7FFFFFFF
+                late += jitter * (self._jitter >> 15) / 65536.0
+            nxt[i] = t + period + late
         if t_us > clock.now_us:
             clock.now_us = t_us
 

@@ -43,6 +43,11 @@ ARM = {
            "backlash_deg": 1.0, "friction": 0.01, "stop": 1000.0, "stop_zeta": 0.2, "soft": 1e4 * 0.04 ** 2},
 }
 
+# Where an obstacle at the gripper is met, m from the axis (J2 moves linearly), and ISO/TS 15066's
+# quasi-static force limit for the abdomen (Annex A), the body region of the soft obstacle.
+CONTACT_RADIUS = {"J1": 0.614, "J3": 0.285, "J4": 0.04}
+ISO_ABDOMEN_N = 110.0
+
 # Encoder error figures. TLE5012B: overall angle error 1.0 deg at 25 C, 1.9 deg over -40..125 C
 # (TLI5012B E1000 datasheet table 4-9; TLE5012B: "max. 1.0 deg ... with auto-calibration"),
 # split into 1x and 2x per revolution terms; no noise figure in the datasheets consulted, so sigma
@@ -118,6 +123,13 @@ def stop_stiffness(joint, kind="rigid", payload_kg=0.0):
     if kind == "rigid":
         return ks, cs
     return soft, 2.0 * ARM[joint]["stop_zeta"] * math.sqrt(soft * jl)
+
+
+def contact_force_n(joint, torque):
+    """The force (N) at the contact (CONTACT_RADIUS; J2: at the screw's nut) of a motor-side
+    torque (N*m) pressing an obstacle."""
+    n = abs(ARM[joint]["reduction"])
+    return abs(torque) * n if joint == "J2" else abs(torque) * n / CONTACT_RADIUS[joint]
 
 
 def joint_to_motor_deg(joint, value):
