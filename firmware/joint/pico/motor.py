@@ -194,9 +194,12 @@ class PicoStepper(MotorHAL):
             return
         now = self._ticks()
         tick_us = self._tick_us
-        ticks = self._diff(now, self._last_us) // tick_us
+        # The nearest whole number of periods: the period grid starts at a call (the resync
+        # below), so a call late or early by less than half a period neither skips a period nor
+        # runs two at once.
+        ticks = (self._diff(now, self._last_us) + (tick_us >> 1)) // tick_us
         if ticks <= 0:
-            return  # called again within the same tick
+            return  # called again within the same period
         if ticks > _MAX_DT_TICKS:
             ticks = _MAX_DT_TICKS
             self._last_us = now
