@@ -35,9 +35,6 @@ class MainLoop:
         q_in = self._q_in
         clock = self.clock
         now = clock.ticks_ms()
-        if self.transactions != self._seen_transactions:
-            self._seen_transactions = self.transactions
-            self._last_host_us = self.host_us
         if not self.disabled:
             try:
                 hal = self.hal
@@ -56,15 +53,15 @@ class MainLoop:
                     self._step_task(now)
                 if self.positioning and hal.position_reached():
                     self.positioning = False
-                # The detectors wait one iteration (never more) after one that applied a
-                # command: the two heaviest jobs do not share an iteration.
-                if clock.ticks_diff(now, self._next_sample_ms) >= applied:
+                # The detectors (when on) wait one iteration, never more, after one that
+                # applied a command: the two heaviest jobs do not share an iteration.
+                if self.stallguard and clock.ticks_diff(now, self._next_sample_ms) >= applied:
                     self._sample_detectors(now)
                 # The deadman: every mode (WATCHDOG) or its quick stop in _check_deadman; the
                 # original's (velocity only) called once the host has been silent long enough.
                 if self.watchdog_ms or self._safe_pending:
                     self._check_deadman()
-                elif self.qd_set and clock.ticks_diff(clock.ticks_us(), self._last_host_us) >= self._deadman_us:
+                elif self.qd_set and clock.ticks_diff(clock.ticks_us(), self.host_us) >= self._deadman_us:
                     self._check_deadman()
                 # The reply caches, each packed only when its value changed. Work split by rate:
                 # the angle every iteration, the encoder speed every second one, the driver speed
