@@ -194,12 +194,12 @@ class PicoStepper(MotorHAL):
         int32 state arrays: a few calls instead of a hundred attribute loads."""
         if not self._ready:
             return
-        now = self._ticks()
-        tick_us = self._tick_us
+        ss, sm, pio, rs, es, enc_regs, enc_buf, vs, ticks_us, diff, tick_us = self._hot
+        now = ticks_us()
         # The nearest whole number of periods: the period grid starts at a call (the resync
         # below), so a call late or early by less than half a period neither skips a period nor
         # runs two at once.
-        ticks = (self._diff(now, self._last_us) + (tick_us >> 1)) // tick_us
+        ticks = (diff(now, self._last_us) + (tick_us >> 1)) // tick_us
         if ticks <= 0:
             return  # called again within the same period
         if ticks > _MAX_DT_TICKS:
@@ -207,7 +207,6 @@ class PicoStepper(MotorHAL):
             self._last_us = now
         else:
             self._last_us += ticks * tick_us
-        ss, sm, pio, rs, es, enc_regs, enc_buf, vs = self._hot
         _steps_poll(ss, sm, pio)
         # The encoder read queued at the last update, tagged with the driver and field positions
         # of that instant (as5600.py); a blocking read when none is queued.
