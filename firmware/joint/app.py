@@ -112,11 +112,6 @@ def join_bus(machine, core, cfg, log):
     def legacy_adapter(target):
         return I2CTargetAdapter(core, target, i2c.whole_reply_writes, probe, block)
 
-    # The target answers its address from its construction on, its handler is set a moment
-    # later: a collection in between (~10 ms on the chip) would leave the host's first reads
-    # unanswered (zeros), so the heap is collected first.
-    import gc
-    gc.collect()
     try:
         return ProtocolSwitch(core, cfg.address, make_target, legacy_adapter,
                               (machine.disable_irq, machine.enable_irq), lambda target: probe)
