@@ -33,6 +33,7 @@ class Handlers:
         self._safe_pending = False
         self.track.reset()
 
+    @micropython.native
     def _set_rpm(self, q, off):
         rpm = f32_to_q(q, off, RPM_Q)
         self.qd_set = rpm

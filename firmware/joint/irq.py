@@ -348,6 +348,7 @@ class IrqPath:
         cache[2] = self.rejects & 0xFF
         cache[3] = self.rejects >> 8
 
+    @micropython.native
     def reply_into(self, out):
         """Write the reply (payload + flags) right-aligned at the end of `out`; return its length."""
         wire = self._reply_wire

@@ -160,6 +160,7 @@ class MainLoop:
         self.flags &= ~mask
         self._irq_on(state)
 
+    @micropython.native
     def _apply_next(self):
         q_out = self._q_out
         base = (q_out & _SLOT_MASK) * _SLOT

@@ -272,6 +272,7 @@ class PicoStepper(MotorHAL):
         if not self._stopping:
             self._ramp.dmax = self._dmax
 
+    @micropython.native
     def set_rpm(self, rpm):
         """Velocity mode: VMAX = |rpm| (Q16, fixed.RPM_Q), direction from the sign (0 ramps down)."""
         if self._stopping:  # a new command ends a stop (the library's stop() blocks instead)
