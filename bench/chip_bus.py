@@ -46,6 +46,11 @@ REPEATS = 7
 CYCLES = 10
 GAP_US = 3000.0
 CYCLE_PERIOD_US = 10_000.0  # host cycling at 100 Hz
+# The background host's clock runs 300 ppm off the joint's, as two boards' clocks do (if less):
+# at exactly 10 ms the cycle would meet the joint's 1 ms loop at one phase for the whole run, set
+# by the boot, and the main-loop figures would measure that phase alone. Off by 3 us a cycle, it
+# sweeps every phase of the loop every 3.3 s.
+HOST_CLOCK_PPM = 300
 CYCLE_NAMES = ("ANGLEMOVED", "GETENCODERRPM", "SETRPM")  # the original host's per-joint cycle
 COMMAND_VALUES = {"SETRPM": (10.0,), "MOVETOANGLE": (1.0,), "SETUP": (30, 10, 0, 0)}
 
@@ -98,10 +103,12 @@ def enable(bus: JointBusClient) -> bool:
 
 
 def host_cycle(pico: EmulatedPico, seconds: float = 60.0) -> None:
-    """The original host cycling at 100 Hz at 400 kHz in the background (for the main-loop run):
-    the 3-transaction cycle; NAKed while the joint is not on the bus."""
+    """The original host cycling at 100 Hz (by its own clock, HOST_CLOCK_PPM) at 400 kHz in the
+    background (for the main-loop run): the 3-transaction cycle; NAKed while the joint is not on
+    the bus."""
     cycle = [(ADDRESS, *legacy_transaction(n)) for n in CYCLE_NAMES]
-    JointBusClient(pico).start_cycle(cycle, period_us=CYCLE_PERIOD_US, repeat=round(seconds * 1e6 / CYCLE_PERIOD_US))
+    period_us = CYCLE_PERIOD_US * (1 + HOST_CLOCK_PPM * 1e-6)
+    JointBusClient(pico).start_cycle(cycle, period_us=period_us, repeat=round(seconds * 1e6 / period_us))
 
 
 def switch_to_v2(bus: JointBusClient, address: int = ADDRESS) -> bytes:

@@ -143,7 +143,7 @@ def run(config_path=CONFIG_FILE):
     stdio = UsbStdio()
     log.set_writer(stdio.write)
     debug = DebugConsole(core, stdio.read, stdio.write)
-    next_ms = time.ticks_ms()
+    next_us = time.ticks_us()
     turn = 0
     try:
         while True:
@@ -158,11 +158,14 @@ def run(config_path=CONFIG_FILE):
                     debug.poll()
                 except Exception as exc:  # the console must never end the control loop
                     log.error("debug console: %r" % (exc,))
-            next_ms = time.ticks_add(next_ms, 1)
-            if time.ticks_diff(time.ticks_ms(), next_ms) > 10:
-                next_ms = time.ticks_ms()  # fell behind (e.g. a long flash write): resynchronise
-            while time.ticks_diff(next_ms, time.ticks_ms()) > 0:
-                machine.idle()
+            # The next iteration starts 1 ms after this one's start: sleep_us waits to the
+            # microsecond (machine.idle() on rp2, a tickless port, may resume up to 1 ms late).
+            next_us = time.ticks_add(next_us, 1000)
+            left = time.ticks_diff(next_us, time.ticks_us())
+            if left > 0:
+                time.sleep_us(left)
+            elif left < -10000:
+                next_us = time.ticks_us()  # fell behind (e.g. a long flash write): resynchronise
     except KeyboardInterrupt:
         # Ctrl-C (mpremote, or a stray byte): leave the joint safe before the REPL takes over,
         # since the deadman and stall detection stop with this loop.

@@ -94,8 +94,6 @@ def init(core, hal, clock, cfg, log, critical):
     core._logged_rejects = 0
     # Main-loop bookkeeping.
     now = clock.ticks_ms()
-    core._seen_transactions = 0
-    core._last_host_us = core.host_us
     core._next_stall_ms = now
     core._stall_period_ms = int(cfg.stall.sample_time * 1000 + 0.5)
     core._next_track_ms = now

@@ -87,6 +87,8 @@ class Handlers:
         self.stall.reset()
         self.track.reset()
         self.stallguard = True
+        # The detectors' deadlines stood still while they were off: both due now.
+        self._next_stall_ms = self._next_track_ms = self._next_sample_ms = self.clock.ticks_ms()
 
     def _disable_stallguard(self, q, off):
         self.stallguard = False

@@ -106,8 +106,9 @@ class Supervisor:
         else:
             timeout = self._deadman_ms
         clock = self.clock
-        silent = clock.ticks_diff(clock.ticks_us(), self._last_host_us) // 1000  # from the IRQ's stamp
-        if silent < timeout or not self._halt(FLAG_NOTENABLED, transactions=self._seen_transactions):
+        seen = self.transactions  # before the stamp: a transaction after it refuses the halt
+        silent = clock.ticks_diff(clock.ticks_us(), self.host_us) // 1000  # from the IRQ's stamp
+        if silent < timeout or not self._halt(FLAG_NOTENABLED, transactions=seen):
             return
         task = self.task_name
         if self._task is not None and task != "boot":

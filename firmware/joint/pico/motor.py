@@ -32,27 +32,29 @@ except ImportError:
     def const(x):
         return x
 
-from ..fixed import LIMIT, muldiv
+from ..fixed import muldiv
 from ..hal import MotorHAL
 from ..tickramp import POSITIONING, VELOCITY_NEG, _run as _ramp_run
-from ..tickramp import S_V, S_X
 from ..velocity import _update as _velocity_update
 from . import tmc2209 as tmc
-from .as5600 import COUNTS_PER_REV, S_AT, S_COUNT, S_NEXT, decode_status
+from .as5600 import COUNTS_PER_REV, S_NEXT, decode_status
 from .as5600 import next_sample as _enc_next
 from .stepgen import _issue as _steps_issue, _poll as _steps_poll
 
 
 _FS_Q4_CAP = 20000 * 16  # full steps/s(^2) in Q4 beyond every limit below: keeps products small
-_MAX_DT_TICKS = 4  # a late update advances the ramp by at most this many loop periods
+_MAX_DT_TICKS = const(4)  # a late update advances the ramp by at most this many loop periods
 
 
-# Words of the state arrays _resync works on (viper needs them as constants here): the encoder's
-# (as5600.S_COUNT, S_AT, S_NEXT) and the ramp's position (tickramp.S_X); test_pico_backend checks.
+# Words of the state arrays _resync and the 1 kHz methods work on, as constants here (viper
+# needs them; elsewhere each saves a global lookup): the encoder's (as5600.S_COUNT, S_AT, S_NEXT)
+# and the ramp's position and speed (tickramp.S_X, S_V); test_pico_backend checks.
 _ES_COUNT = const(1)
 _ES_AT = const(4)
 _ES_NEXT = const(6)
 _RS_X = const(0)
+_RS_V = const(2)
+_LIMIT = const(0x3FFFFFFF)  # fixed.LIMIT
 
 
 @micropython.viper
@@ -145,17 +147,19 @@ class PicoStepper(MotorHAL):
         int32 state arrays: a few calls instead of a hundred attribute loads."""
         if not self._ready:
             return
-        now = self._ticks()
-        tick_us = self._tick_us
-        ticks = self._diff(now, self._last_us) // tick_us
+        ss, sm, pio, rs, es, enc_regs, enc_buf, vs, ticks_us, diff, tick_us = self._hot
+        now = ticks_us()
+        # The nearest whole number of periods: the period grid starts at a call (the resync
+        # below), so a call late or early by less than half a period neither skips a period nor
+        # runs two at once.
+        ticks = (diff(now, self._last_us) + (tick_us >> 1)) // tick_us
         if ticks <= 0:
-            return  # called again within the same tick
+            return  # called again within the same period
         if ticks > _MAX_DT_TICKS:
             ticks = _MAX_DT_TICKS
             self._last_us = now
         else:
             self._last_us += ticks * tick_us
-        ss, sm, pio, rs, es, enc_regs, enc_buf, vs = self._hot
         _steps_poll(ss, sm, pio)
         # The encoder read queued at the last update, tagged with the driver and field positions
         # of that instant (as5600.py); a blocking read when none is queued.
@@ -163,13 +167,13 @@ class PicoStepper(MotorHAL):
         if got < 0:
             got = self._enc.sample(ss[0], ss[3])
         if got:
-            _velocity_update(vs, es[S_COUNT])
+            _velocity_update(vs, es[_ES_COUNT])
             if self._closed_loop:
                 self._error = _resync(es, ss, rs, self._threshold)
         _ramp_run(rs, ticks)
-        if self._stopping and rs[S_V] == 0:
+        if self._stopping and rs[_RS_V] == 0:
             self._finish_stop()
-        _steps_issue(ss, sm, pio, rs[S_X], ticks * tick_us)
+        _steps_issue(ss, sm, pio, rs[_RS_X], ticks * tick_us)
 
     def _relabel(self, delta):
         """Shift the driver frame by `delta` usteps without moving the motor (an XACTUAL write):
@@ -318,8 +322,8 @@ class PicoStepper(MotorHAL):
 
     def angle_moved(self):
         """Encoder angle since home, degrees in Q12 (exact: 360 Q12 units a count)."""
-        count = self._es[S_COUNT]
-        return count * 360 if -2982616 < count < 2982616 else (LIMIT if count > 0 else -LIMIT)
+        count = self._es[_ES_COUNT]
+        return count * 360 if -2982616 < count < 2982616 else (_LIMIT if count > 0 else -_LIMIT)
 
     def encoder_rpm(self):
         """rpm in Q16: counts/s (Q8) * 60 / 4096 * 256 (|counts/s| < 280 000 keeps it small)."""
@@ -328,7 +332,7 @@ class PicoStepper(MotorHAL):
     def driver_rpm(self):
         """Speed of the ramp generator, rpm in Q16 (the ramp's Q16 usteps/tick * rate * 60 / 51200),
         rounded toward minus infinity; muldiv inlined (it runs at 1 kHz)."""
-        v = self._rs[S_V]
+        v = self._rs[_RS_V]
         den = self._rpm_den
         q = v // den
         return q * self._rpm_num + (v - q * den) * self._rpm_num // den
@@ -341,7 +345,7 @@ class PicoStepper(MotorHAL):
         """Usteps of pulses that reached the driver since construction, wrapping at 2**30, when
         the encoder's latest sample was read (with a queued read one period ago): the stall and
         homing evidence compare the two at the same instant."""
-        return self._es[S_AT + 1]
+        return self._es[_ES_AT + 1]
 
     def position_reached(self):
         return not self._stopping and self._ramp.position_reached() and self._steps.idle()

@@ -199,9 +199,6 @@ def init_stepper(m, driver, encoder, steps, enable, clock, update_hz, rsense_ohm
     m._sm = steps._sm
     m._pio = steps.pio
     m._es = encoder.s
-    # update()'s references, one tuple load instead of eight attribute loads (~2 us each)
-    m._hot = (m._ss, m._sm, m._pio, m._rs, m._es, encoder.regs, encoder.buf,
-                 m._vs)
     num, den = 3 * rate, 2560
     while den % 2 == 0 and num % 2 == 0:
         num //= 2
@@ -225,8 +222,9 @@ def init_stepper(m, driver, encoder, steps, enable, clock, update_hz, rsense_ohm
     m._pwmconf = 0
     m._ready = False
     m._last_us = 0
-    m._ticks = m._clock.ticks_us
-    m._diff = m._clock.ticks_diff
+    # update()'s references, one tuple load instead of eleven attribute loads (~2 us each)
+    m._hot = (m._ss, m._sm, m._pio, m._rs, m._es, encoder.regs, encoder.buf, m._vs,
+              m._clock.ticks_us, m._clock.ticks_diff, m._tick_us)
     m.fault = None  # last UART error after begin(), for diagnostics
     m.faults = 0
 
