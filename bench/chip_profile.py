@@ -149,7 +149,7 @@ micropython.mem_info()
 micropython.qstr_info()
 '''
 
-MODULES = ["joint.emitters", "joint.fixed", "joint.protocol_v2", "joint.protocol", "joint.irq", "joint.filters",
+MODULES = ["joint.emitters", "joint.fixed", "joint.protocol_v2", "joint.protocol", "joint.irq",
            "joint.stall",
            "joint.tracking", "joint.homing", "joint.supervise", "joint.handlers", "joint.tasks",
            "joint.loop", "joint.version", "joint.regtable", "joint.core", "joint.settings", "joint.config", "joint.clock", "joint.log",

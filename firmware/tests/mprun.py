@@ -1,6 +1,6 @@
 """Run firmware test modules under the MicroPython unix port.
 
-    MICROPYPATH=firmware:firmware/tests micropython firmware/tests/mprun.py test_filters ...
+    MICROPYPATH=firmware:firmware/tests micropython firmware/tests/mprun.py test_stall ...
 
 Each module's `test_*` functions run in name order; the exit status is the number of failures.
 pytest runs the same modules under CPython (tests/test_firmware_on_micropython.py runs this).

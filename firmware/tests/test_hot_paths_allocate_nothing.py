@@ -4,7 +4,7 @@ Counted under the MicroPython unix port, which boxes floats like the board: the 
 `service()` allocates, summed over many iterations in each state a joint lives in. Under CPython
 (where every int is an object) only the states are exercised. The supervision runs on the shipped
 configs (the tracking stall detector, the homing monitor, the deadman in every mode and its quick
-stop); the original stall detector still computes in floats and is not covered.
+stop) and the original stall detector, the schema default.
 """
 
 from joint import config, protocol as P
@@ -119,6 +119,18 @@ def test_stall_sampling_with_the_tracking_detector_allocates_nothing():
     _zero(j, "turning with the tracking detector sampling")
     assert j.core.stallguard and j.core.track.speed != 0, "the detector must be sampling a motion"
     assert not j.core.flags & P.FLAG_STALL
+
+
+def test_stall_sampling_with_the_original_detector_allocates_nothing():
+    j = _moving()  # the schema default: a joint without a config file
+    assert j.cfg.stall.detector == "original"
+    j.command("ENABLESTALLGUARD", 6)
+    j.command("SETRPM", 100.0)
+    j.tick(1000, poll_every=10)
+    j.core.stall.raw = -1
+    _zero(j, "turning with the original detector sampling")
+    assert j.core.stall.raw != -1, "the detector must sample during the counted iterations"
+    assert j.core.stallguard and j.core.stall.speed != 0 and not j.core.flags & P.FLAG_STALL
 
 
 def test_homing_on_the_shipped_config_allocates_nothing():

@@ -1,6 +1,7 @@
 """Homing, orientation check, stall detection and deadman: the real firmware on the simulated stepper."""
 
 from joint import protocol as P
+from joint.stall import StallDetector
 from harness import SimRig
 
 BUSY, STALL, NOTHOMED, NOTENABLED = P.FLAG_BUSY, P.FLAG_STALL, P.FLAG_NOTHOMED, P.FLAG_NOTENABLED
@@ -76,6 +77,7 @@ def _j1_motion(rig, spike_limit=None):
     # J1 motor limits: 2 rad/s^2 and 1 rad/s of joint x reduction 35, in motor deg/s^2 and deg/s.
     if spike_limit is not None:
         rig.joint.cfg.stall.spike_limit = spike_limit
+        rig.joint.core.stall = StallDetector(rig.joint.cfg.stall)  # it takes its constants once
     rig.enable(current=20, sensitivity=6, accel_deg=4010.7, vel_deg=2005.4)
 
 
