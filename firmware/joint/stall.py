@@ -63,10 +63,10 @@ class StallDetector:
         return self._threshold_q4(_q(speed_rad_s, _SPEED_Q)) / 16
 
     def update(self, pid_error, encoder_rpm, set_rpm):
-        """Feed one sample: PID error in usteps, speeds in rpm Q16 (fixed.RPM_Q, the HAL's
-        units); True when it detects a stall (the filter is then reset)."""
-        speed = _mul_q15(int(encoder_rpm), _RPM_Q16_TO_SPEED_Q15)
-        raw = abs(int(pid_error))
+        """Feed one sample: PID error in usteps, speeds in rpm Q16 (fixed.RPM_Q), all ints as the
+        HAL gives them; True when it detects a stall (the filter is then reset)."""
+        speed = _mul_q15(encoder_rpm, _RPM_Q16_TO_SPEED_Q15)
+        raw = abs(pid_error)
         sample = self.last if raw - self.last > self._spike else raw
         state = _mul_q15(self._state, self._keep) + _mul_q15(min(sample, _INPUT_MAX) << 12, self._take)
         self._state = state

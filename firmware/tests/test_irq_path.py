@@ -378,3 +378,18 @@ def test_a_short_command_is_rejected_at_the_read_or_at_stop():
     before = rig.core.rejects
     target.fire(E_W)  # STOP, bus idle: judged at once
     assert rig.core.rejects == before + 1
+
+
+def test_the_main_loop_reads_the_queue_and_the_spec_where_they_are():
+    """loop.py keeps the queue layout, the cache registers and the fixed-point formats it uses
+    every iteration as its own constants: they must be theirs."""
+    if MICROPYTHON:
+        return  # const() names with a leading underscore are no module attributes there
+    from joint import fixed, irq, loop
+    assert (loop._ANGLE_Q, loop._RPM_Q) == (fixed.ANGLE_Q, fixed.RPM_Q)
+    assert (loop._ANGLEMOVED, loop._GETENCODERRPM, loop._GETDRIVERRPM, loop._GETPIDERROR, loop._LASTERROR) == (
+        P.ANGLEMOVED, P.GETENCODERRPM, P.GETDRIVERRPM, P.GETPIDERROR, P.LASTERROR)
+    assert (loop._SLOT_MASK, loop._SLOT, loop._SLOT_FLAGS, loop._SLOT_HALTS, loop._SLOT_STOPS) == (
+        irq.QUEUE_SLOTS - 1, irq.SLOT, irq.SLOT_FLAGS, irq.SLOT_HALTS, irq.SLOT_STOPS)
+    assert (loop._MOTION_BLOCKED, loop._COUNTER_MASK) == (irq.MOTION_BLOCKED, irq.COUNTER_MASK)
+    assert irq.QUEUE_SLOTS & (irq.QUEUE_SLOTS - 1) == 0, "the slot mask needs a power of two"

@@ -1,5 +1,6 @@
 """The simulated uStepper S32 (joint.sim.stepper) against ustepper-model.md sections 3, 4, 8.7 and 8.8."""
 
+from joint.fixed import RPM_Q, to_q
 from joint.sim.clock import VirtualClock
 from joint.sim.stepper import SimStepper
 from joint.stall import StallDetector
@@ -197,18 +198,23 @@ def test_homing_ends_on_pole_slip_spikes_not_a_growing_error():
         assert abs(rotor - 8.0 * direction) < 4.0
 
 
+def _sample(det, m, set_rpm):
+    """One detector sample in the HAL's units (usteps, rpm Q16), as the firmware feeds it."""
+    return det.update(to_q(m.pid_error(), 0), to_q(m.encoder_rpm(), RPM_Q), to_q(set_rpm, RPM_Q))
+
+
 def test_stall_detector_quiet_while_j1_accelerates_and_cruises():
     for seed in (1, 2):
         clock, m, det = _j1_motor(seed)
         m.set_rpm(334.0)
         for _ in range(150):
             _run(clock, m, 0.01, 10000)
-            assert not det.update(m.pid_error(), m.encoder_rpm(), 334.0)
+            assert not _sample(det, m, 334.0)
         assert abs(m.encoder_rpm() - 334.0) < 2.0
         m.set_rpm(0.0)
         for _ in range(60):
             _run(clock, m, 0.01, 10000)
-            assert not det.update(m.pid_error(), m.encoder_rpm(), 0.0)
+            assert not _sample(det, m, 0.0)
 
 
 def test_stall_detector_fires_on_a_collision_at_moderate_speed():
@@ -217,7 +223,7 @@ def test_stall_detector_fires_on_a_collision_at_moderate_speed():
         m.set_rpm(120.0)
         for _ in range(60):
             _run(clock, m, 0.01, 10000)
-            assert not det.update(m.pid_error(), m.encoder_rpm(), 120.0)
+            assert not _sample(det, m, 120.0)
         clock.advance(phase_us)
         m.update()
         m.block()
@@ -226,7 +232,7 @@ def test_stall_detector_fires_on_a_collision_at_moderate_speed():
         fired = None
         for _ in range(100):
             m.update()
-            if det.update(m.pid_error(), m.encoder_rpm(), 120.0):
+            if _sample(det, m, 120.0):
                 fired = clock.seconds()
                 break
             clock.advance(10000)

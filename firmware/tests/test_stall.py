@@ -45,10 +45,10 @@ def test_threshold_adds_the_window_offset_only_inside_the_speed_window():
 
 def test_spikes_are_rejected_against_the_last_accepted_sample():
     det = _detector(6)
-    det.update(10.0, 0.0, 0.0)
-    det.update(500.0, 0.0, 0.0)
+    det.update(10, 0, 0)
+    det.update(500, 0, 0)
     assert det.despiked == 10.0 and det.raw == 500.0
-    det.update(-80.0, 0.0, 0.0)
+    det.update(-80, 0, 0)
     assert det.despiked == 80.0, "|error|, a 70 rise is accepted"
 
 
@@ -56,13 +56,13 @@ def test_stall_fires_when_filtered_error_exceeds_threshold_then_resets():
     det = _detector(6)
     fired_at = None
     for i in range(100):
-        if det.update(65.0 if i < 1 else min(65.0 + i, 80.0), 0.0, 0.0):
+        if det.update(65 if i < 1 else min(65 + i, 80), 0, 0):
             fired_at = i
             break
     assert fired_at is not None and fired_at > 5, "the low-pass delays detection"
     assert det.filtered > 60.0 and det.stalled
     assert det.last == 0.0
-    det.update(0.0, 0.0, 0.0)
+    det.update(0, 0, 0)
     assert det.filtered == 0.0, "filter state was cleared"
 
 

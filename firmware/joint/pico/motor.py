@@ -37,7 +37,7 @@ from ..hal import MotorHAL
 from ..tickramp import POSITIONING, VELOCITY_NEG, _run as _ramp_run
 from ..velocity import _update as _velocity_update
 from . import tmc2209 as tmc
-from .as5600 import COUNTS_PER_REV, S_NEXT, decode_status
+from .as5600 import decode_status
 from .as5600 import next_sample as _enc_next
 from .stepgen import _issue as _steps_issue, _poll as _steps_poll
 
@@ -180,7 +180,7 @@ class PicoStepper(MotorHAL):
         in positioning mode the ramp then makes up the difference toward the same target."""
         self._steps.shift(delta)
         self._ramp.x += delta  # keeps the sub-ustep fraction
-        self._es[S_NEXT] += delta  # the queued encoder read's driver position
+        self._es[_ES_NEXT] += delta  # the queued encoder read's driver position
 
     # ---- closed loop ----
 
