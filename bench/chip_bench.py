@@ -21,6 +21,7 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT)]
 
 from bioscara import flash  # noqa: E402
+from bioscara.firmware.debug_commands import TRACE_COLUMNS  # noqa: E402
 from chip import fsimage  # noqa: E402
 from chip.board import EmulatedPico  # noqa: E402
 from chip.joint_devices import JOINT_DEVICES_PLUGIN  # noqa: E402
@@ -30,6 +31,7 @@ from chip_bus import host_cycle  # noqa: E402
 
 JOINT = "J1"
 LOOP_MS = 20_000  # the measured main loop, emulated milliseconds (the issue: >= 20,000 iterations)
+TRACE_MS = 5_000  # the main loop again, with the original detector's trace on the console
 # TMC2209, AS5600, rotor on its pins; the emulated I2C controller on its I2C0 (the joint bus)
 JOINT_PLUGINS: list[dict[str, Any]] = [JOINT_DEVICES_PLUGIN, joint_bus_plugin(khz=400)]
 BEFORE_LOOP: list[Callable[[EmulatedPico], None]] = [host_cycle]  # the host cycling at 100 Hz
@@ -55,18 +57,38 @@ gc.collect()
 _before = gc.mem_free()
 import chip_loop
 gc.collect()
-chip_loop.run({ms}, _before - gc.mem_free())
+chip_loop.run({ms}, _before - gc.mem_free(), {trace})
 """
+# The trace run's figures, as chip.trace.<name>; lines_per_s counts the trace lines the console
+# printed while the loop was timed (J1 samples every 10 ms: 100 when none is dropped).
+TRACE_FIGURES = ("chip.loop_hz", "chip.service_us_median", "chip.service_us_p99", "chip.service_us_max",
+                 "chip.alloc_bytes_per_service")
+TIMED_MARK = "chip.timed_from_here"  # bench/chip_loop.py prints it when timing starts
 
 
-def main_loop_figures() -> dict[str, float]:
+def _loop_output(ms: int, trace: bool) -> str:
     with tempfile.TemporaryDirectory() as directory:
         image = bench_image(pathlib.Path(directory))
         with EmulatedPico(image, plugins=JOINT_PLUGINS) as pico:
             for prepare in BEFORE_LOOP:
                 prepare(pico)
-            out = pico.exec(LOOP_SCRIPT.format(ms=LOOP_MS), soft_reset=True, timeout=600)
-    return parse_figures(out)
+            return pico.exec(LOOP_SCRIPT.format(ms=ms, trace=trace), soft_reset=True, timeout=600)
+
+
+def main_loop_figures() -> dict[str, float]:
+    return parse_figures(_loop_output(LOOP_MS, trace=False))
+
+
+def trace_loop_figures() -> dict[str, float]:
+    """The main loop with `trace on` (the issue: it must still hold 1 kHz)."""
+    out = _loop_output(TRACE_MS, trace=True)
+    figures = parse_figures(out)
+    timed = out.split(TIMED_MARK, 1)[1] if TIMED_MARK in out else ""
+    lines = sum(1 for line in timed.splitlines() if len(line.split("\t")) == len(TRACE_COLUMNS))
+    result = {name.replace("chip.", "chip.trace.", 1): figures[name] for name in TRACE_FIGURES if name in figures}
+    if "chip.loop_seconds" in figures:
+        result["chip.trace.lines_per_s"] = lines / figures["chip.loop_seconds"]
+    return result
 
 
 def parse_figures(out: str) -> dict[str, float]:
@@ -84,7 +106,7 @@ def bus_figures() -> dict[str, float]:
     return chip_bus.deployed_figures()
 
 
-PRODUCERS: list[Callable[[], dict[str, float]]] = [main_loop_figures, bus_figures]
+PRODUCERS: list[Callable[[], dict[str, float]]] = [main_loop_figures, trace_loop_figures, bus_figures]
 
 
 def main() -> int:

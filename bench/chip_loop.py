@@ -12,10 +12,10 @@ without changing what is measured. Two phases, in one run of the joint:
    SETRPM refused before it), `ALLOC_CALLS` service() calls, each between two mem_alloc() readings; the figure
    is the mean over calls during which no collection ran;
 2. after `CATCH_UP_CALLS` untimed calls (the loop back on its schedule), timing, `duration_ms`:
-   service() time per call, iteration time (service start to service
-   start), loop rate. A collection is found by mem_alloc() falling, read only after an iteration
-   longer than `STALL_US` (the iteration after that reading is left out): its pause is that
-   iteration less the median one. Collections that stall the loop less than STALL_US are counted
+   service() time per call, iteration time (service start to service start), loop rate (with
+   `trace`, TIMED_MARK on the console first). A collection is found by mem_alloc() falling, read
+   only after an iteration longer than `STALL_US` (the iteration after that reading is left out):
+   its pause is that iteration less the median one. Collections that stall the loop less than STALL_US are counted
    at the end but give no pause figure.
 """
 
@@ -26,12 +26,13 @@ from array import array
 from micropython import const
 
 from joint import app, core, debug
-from joint.protocol import SETUP  # an int: holding the module would keep the spec the board drops after boot
+from joint.protocol import ENABLESTALLGUARD, SETUP  # ints: holding the module would keep the spec the board drops after boot
 
 ALLOC_CALLS = const(40)
 SETTLE_CALLS = const(200)
 CATCH_UP_CALLS = const(20)
 STALL_US = const(3000)
+TIMED_MARK = "chip.timed_from_here"
 _BUCKETS = const(5000)  # 1 us histogram buckets; longer go to the last one (and the maxima)
 _service_hist = array("H", bytes(2 * _BUCKETS))
 _iteration_hist = array("H", bytes(2 * _BUCKETS))
@@ -54,9 +55,12 @@ _ITERATION_MAX = const(14)
 _ALLOC_DONE = const(15)
 _SETTLED = const(16)
 _CAUGHT_UP = const(17)
+_TRACE = const(18)
 
 # The original host's SETUP (drive 30 %, hold 10 %), so the host's cycling SETRPM turns the joint.
 _SETUP = bytearray((SETUP, 30, 10, 0, 0))
+# The trace run: the original detector sampling (sensitivity 6) with `trace on` typed at the console.
+_STALLGUARD = bytearray((ENABLESTALLGUARD, 6))
 _service = core.JointController.service
 _poll = debug.DebugConsole.poll
 _ticks_us = time.ticks_us
@@ -90,6 +94,8 @@ def _catching_up(self, s):
     s[_CAUGHT_UP] += 1
     if s[_CAUGHT_UP] >= CATCH_UP_CALLS:
         s[_PHASE] = 3
+        if s[_TRACE]:
+            print(TIMED_MARK)  # on the console between the trace lines: those after it are timed
         s[_CHECKED_ALLOC] = _mem_alloc()
         s[_START] = s[_LAST_START] = _ticks_us()
         s[_SKIP_NEXT] = 1
@@ -139,6 +145,10 @@ def _first_poll(self):
         # The joint is built, on the bus, its console up: enable it as a host would, collect, note
         # the heap, start measuring.
         self.core.on_frame(_SETUP, len(_SETUP))
+        if s[_TRACE]:
+            self.core.set_stall_detector("original")
+            self.core.on_frame(_STALLGUARD, len(_STALLGUARD))
+            self.execute("trace", ["on"])
         gc.collect()
         s[_HEAP_FREE] = gc.mem_free()
         s[_PHASE] = 1
@@ -155,11 +165,13 @@ def _percentile(hist, count, fraction):
     return _BUCKETS
 
 
-def run(duration_ms=5000, own_heap=0):
+def run(duration_ms=5000, own_heap=0, trace=False):
     """Run the joint's main loop for `duration_ms` (emulated) and print the figures.
-    `own_heap`: bytes this module occupies, added back to the heap figure."""
+    `own_heap`: bytes this module occupies, added back to the heap figure; `trace`: with the
+    original detector sampling and its trace on the console."""
     s = _s
     s[_DURATION] = duration_ms * 1000
+    s[_TRACE] = 1 if trace else 0
     core.JointController.service = _timed_service
     debug.DebugConsole.poll = _first_poll
     try:

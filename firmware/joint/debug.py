@@ -27,8 +27,9 @@ _LINE = const(64)
 
 class UsbStdio:
     """The board's USB serial (stdin/stdout) without ever waiting: `read(buf)` takes only bytes
-    already there, `write(line)` drops the line (counted in `dropped`) when USB cannot take it now,
-    e.g. a host that keeps the port open without reading (stdout would block up to 500 ms)."""
+    already there, `write(line)` (a str or its bytes: MicroPython's stdout takes both) drops the
+    line (counted in `dropped`) when USB cannot take it now, e.g. a host that keeps the port open
+    without reading (stdout would block up to 500 ms)."""
 
     def __init__(self):
         import select
@@ -69,7 +70,8 @@ def _ready(poller):
 
 
 class DebugConsole:
-    """`read(buf)` returns how many bytes it put in buf (0 when none wait); `write(text)` prints a line."""
+    """`read(buf)` returns how many bytes it put in buf (0 when none wait); `write(line)` prints a
+    line: a str, or (the trace) a bytes-like view of a buffer that is reused after the call."""
 
     def __init__(self, core, read, write):
         self.core = core

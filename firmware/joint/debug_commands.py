@@ -3,6 +3,8 @@ a joint nobody types to keeps only the line reader."""
 
 from . import log as L
 from .fixed import ANGLE_Q, RPM_Q
+from .supervise import DETECTOR_NAMES, ORIGINAL
+from .trace_line import TraceLine
 
 TRACE_COLUMNS = ("raw", "despiked", "filtered", "speed", "set_speed", "threshold", "stall")
 TRACE_UNITS = ("usteps", "usteps", "usteps", "rad/s", "rad/s", "usteps", "")
@@ -17,11 +19,12 @@ _RPM = 1 << RPM_Q
 
 
 class Commands:
-    """Runs one console command on `core`; `write(text)` prints a line."""
+    """Runs one console command on `core`; `write(line)` prints a line (see DebugConsole)."""
 
     def __init__(self, core, write):
         self.core = core
         self._write = write
+        self._trace_line = None  # made by the first `trace on`: its buffers take ~2 KB
         self._commands = {"status": self._status, "regs": self._regs, "trace": self._trace_cmd,
                           "log": self._log, "help": self._help}
 
@@ -78,9 +81,14 @@ class Commands:
 
     def _trace_cmd(self, args):
         if args == ["on"]:
+            if self._trace_line is None:
+                self._trace_line = TraceLine()
             self.core.trace = self._trace_sample
             self._write("trace on: %s (one line per stall-detection sample, while stall detection runs)"
                         % " ".join(TRACE_COLUMNS))
+            if self.core.detector != ORIGINAL:
+                self._write("note: only the original stall detector is traced; this joint runs the %s one"
+                            % DETECTOR_NAMES[self.core.detector])
         elif args == ["off"]:
             self.core.trace = None
             self._write("trace off")
@@ -88,8 +96,7 @@ class Commands:
             self._write("error: use trace on or trace off")
 
     def _trace_sample(self, s):
-        self._write("%.2f\t%.2f\t%.2f\t%.3f\t%.3f\t%.2f\t%d" % (
-            s.raw, s.despiked, s.filtered, s.speed, s.set_speed, s.threshold, s.stalled))
+        self._write(self._trace_line.line(s))
 
     def _log(self, args):
         names = L.LEVEL_NAMES

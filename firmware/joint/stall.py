@@ -7,7 +7,8 @@ speed in motor rad/s from the encoder. The filtered error above the threshold is
 
 The original computes in floats; here every sample is small-int fixed point (usteps Q4, filter
 state Q12, speed rad/s Q18), so sampling allocates nothing on the board, where floats are boxed.
-The trace's float columns are computed only when read.
+The float properties (the log, the tests) are computed only when read; the trace formats the ints
+(trace_line.py).
 """
 
 RPM_PER_RAD_S = 9.549296596425384
@@ -20,6 +21,11 @@ _RPM_Q16_TO_SPEED_Q15 = round((1 << _SPEED_Q) / (RPM_PER_RAD_S * 65536) * 32768)
 def _mul_q15(a, b):
     """a * b / 2**15, rounded, without leaving the small-int range: |a| < 2**30, 0 <= b < 2**15."""
     return (a >> 15) * b + (((a & 0x7FFF) * b + 0x4000) >> 15)
+
+
+def speed_q18(rpm_q16):
+    """Motor rad/s Q18 of a speed in rpm Q16 (fixed.RPM_Q)."""
+    return _mul_q15(rpm_q16, _RPM_Q16_TO_SPEED_Q15)
 
 
 def _q(value, bits):
@@ -45,10 +51,10 @@ class StallDetector:
         # The last sample, the columns the original printed for its serial plotter.
         self.raw = 0
         self.despiked = 0
-        self._filtered = 0
-        self._speed = 0
-        self._set_rpm = 0
-        self._threshold = 0
+        self.filtered_q4 = 0
+        self.speed_q18 = 0
+        self.set_rpm_q16 = 0
+        self.threshold_q4 = 0
         self.stalled = False
 
     def _threshold_q4(self, speed):
@@ -73,8 +79,8 @@ class StallDetector:
         filtered = _mul_q15(state >> 1, self._gain)
         thr = self._threshold_q4(speed)
         stalled = filtered > thr
-        self.raw, self.despiked, self._filtered = raw, sample, filtered
-        self._speed, self._set_rpm, self._threshold = speed, set_rpm, thr
+        self.raw, self.despiked, self.filtered_q4 = raw, sample, filtered
+        self.speed_q18, self.set_rpm_q16, self.threshold_q4 = speed, set_rpm, thr
         self.stalled = stalled
         if stalled:
             self.reset()
@@ -89,19 +95,19 @@ class StallDetector:
     @property
     def filtered(self):
         """The filtered |PID error| of the last sample, usteps."""
-        return self._filtered / 16
+        return self.filtered_q4 / 16
 
     @property
     def threshold(self):
         """The threshold the last sample was compared with, usteps."""
-        return self._threshold / 16
+        return self.threshold_q4 / 16
 
     @property
     def speed(self):
         """The encoder speed of the last sample, motor rad/s."""
-        return self._speed / (1 << _SPEED_Q)
+        return self.speed_q18 / (1 << _SPEED_Q)
 
     @property
     def set_speed(self):
         """The set speed at the last sample, motor rad/s."""
-        return self._set_rpm / 65536.0 / RPM_PER_RAD_S
+        return self.set_rpm_q16 / 65536.0 / RPM_PER_RAD_S

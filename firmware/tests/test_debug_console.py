@@ -30,7 +30,10 @@ class Console:
         self.rig = Rig()
         self.keys = Keyboard()
         self.out = []
-        self.debug = DebugConsole(self.rig.core, self.keys.read, self.out.append)
+        self.debug = DebugConsole(self.rig.core, self.keys.read, self._write)
+
+    def _write(self, line):
+        self.out.append(line if isinstance(line, str) else bytes(line).decode())  # a trace line's buffer is reused
 
     def run(self, text, polls=20):
         self.keys.type(text)
@@ -74,6 +77,15 @@ def test_trace_streams_every_stall_detection_sample():
     assert console.run("trace off\n") == ["trace off"]
     rig.run_ms(100)
     assert console.out == []
+
+
+def test_trace_on_says_when_the_joint_runs_a_detector_without_a_trace():
+    console = Console()
+    console.rig.core.set_stall_detector("tracking")
+    out = console.run("trace on\n")
+    assert out[1] == "note: only the original stall detector is traced; this joint runs the tracking one"
+    console.rig.core.set_stall_detector("original")
+    assert len(console.run("trace on\n")) == 1
 
 
 def test_log_level_changes_and_bad_levels_change_nothing():

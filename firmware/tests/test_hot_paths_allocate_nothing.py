@@ -4,7 +4,7 @@ Counted under the MicroPython unix port, which boxes floats like the board: the 
 `service()` allocates, summed over many iterations in each state a joint lives in. Under CPython
 (where every int is an object) only the states are exercised. The supervision runs on the shipped
 configs (the tracking stall detector, the homing monitor, the deadman in every mode and its quick
-stop) and the original stall detector, the schema default.
+stop) and the original stall detector, the schema default, with its console trace on too.
 """
 
 from joint import config, protocol as P
@@ -132,6 +132,24 @@ def test_stall_sampling_with_the_original_detector_allocates_nothing():
     assert j.core.stall.raw != -1, "the detector must sample during the counted iterations"
     assert j.core.stallguard and j.core.stall.speed != 0 and not j.core.flags & P.FLAG_STALL
 
+
+
+def test_the_trace_on_the_console_allocates_nothing():
+    j = _moving()
+    j.command("ENABLESTALLGUARD", 6)
+    j.command("SETRPM", 100.0)
+    printed = [0, 0]  # lines, bytes: a writer that keeps nothing, as USB takes the bytes
+
+    def write(line):
+        printed[0] += 1
+        printed[1] += len(line)
+    console = DebugConsole(j.core, lambda buf: 0, write)
+    console.execute("trace", ["on"])
+    j.tick(1000, poll_every=10)
+    lines = printed[0]
+    _zero(j, "turning with the trace on")
+    assert printed[0] - lines >= N // 10 - 1, "one line per 10 ms sample during the counted iterations"
+    assert printed[1] > 30 * printed[0]
 
 def test_homing_on_the_shipped_config_allocates_nothing():
     j = _shipped()

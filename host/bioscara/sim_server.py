@@ -80,8 +80,10 @@ class Pty:
                 self.dropped += len(view)
                 return
 
-    def write_line(self, text: str) -> None:
-        self.write(text.encode() + b"\r\n")  # as MicroPython's print on USB serial
+    def write_line(self, line: str | bytes | bytearray | memoryview) -> None:
+        """One console line: text, or the bytes of one (the trace's reused buffer)."""
+        data = line.encode() if isinstance(line, str) else bytes(line)
+        self.write(data + b"\r\n")  # as MicroPython's print on USB serial
 
     def close(self) -> None:
         for fd in (self._fd, self._client_fd):
