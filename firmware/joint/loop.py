@@ -129,13 +129,15 @@ class MainLoop:
         self.log.error("motor fault, joint disabled until reset: %r" % (exc,))
 
     def _sample_detectors(self, now):
-        """The stall detectors at their own periods; the loop checks only the earlier deadline."""
+        """The stall detectors at their own periods; the loop checks only the earlier deadline.
+        The next deadline follows the last one, not the sample: one deferred an iteration (after
+        an apply) must not stretch the period the detectors' filters assume."""
         clock = self.clock
         if clock.ticks_diff(now, self._next_stall_ms) >= 0:
-            self._next_stall_ms = clock.ticks_add(now, self._stall_period_ms)
+            self._next_stall_ms = _next_deadline(clock, self._next_stall_ms, now, self._stall_period_ms)
             self._check_stall()
         if clock.ticks_diff(now, self._next_track_ms) >= 0:
-            self._next_track_ms = clock.ticks_add(now, self.track.sample_ms)
+            self._next_track_ms = _next_deadline(clock, self._next_track_ms, now, self.track.sample_ms)
             self._check_tracking()
         stall, track = self._next_stall_ms, self._next_track_ms
         self._next_sample_ms = stall if clock.ticks_diff(stall, track) <= 0 else track
@@ -190,3 +192,12 @@ class MainLoop:
         self.qd_set = 0
         self.positioning = False
         return True
+
+
+def _next_deadline(clock, deadline, now, period_ms):
+    """`period_ms` after `deadline`; from `now` if that is already past (a stall of the loop, or
+    detection just turned on): no burst of samples to catch up."""
+    following = clock.ticks_add(deadline, period_ms)
+    if clock.ticks_diff(following, now) <= 0:
+        return clock.ticks_add(now, period_ms)
+    return following

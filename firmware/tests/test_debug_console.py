@@ -79,6 +79,18 @@ def test_trace_streams_every_stall_detection_sample():
     assert console.out == []
 
 
+def test_sampling_keeps_its_period_while_a_host_streams_a_command_every_millisecond():
+    console = Console()
+    rig = console.rig
+    rig.command("SETUP", 20, 20, 0, 0)
+    rig.command("ENABLESTALLGUARD", 5)
+    console.run("trace on\n")
+    for i in range(1000):
+        rig.command("SETRPM", 30.0 + (i & 1))  # each one applied in the next iteration
+        rig.run_ms(1)
+    assert 99 <= len(console.out) <= 101, "%d samples in 1 s: the detector's filter assumes 10 ms" % len(console.out)
+
+
 def test_trace_on_says_when_the_joint_runs_a_detector_without_a_trace():
     console = Console()
     console.rig.core.set_stall_detector("tracking")
