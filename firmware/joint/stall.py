@@ -71,7 +71,7 @@ class StallDetector:
     def update(self, pid_error, encoder_rpm, set_rpm):
         """Feed one sample: PID error in usteps, speeds in rpm Q16 (fixed.RPM_Q), all ints as the
         HAL gives them; True when it detects a stall (the filter is then reset)."""
-        speed = _mul_q15(encoder_rpm, _RPM_Q16_TO_SPEED_Q15)
+        speed = speed_q18(encoder_rpm)
         raw = abs(pid_error)
         sample = self.last if raw - self.last > self._spike else raw
         state = _mul_q15(self._state, self._keep) + _mul_q15(min(sample, _INPUT_MAX) << 12, self._take)
