@@ -8,7 +8,7 @@ NPM := $(shell command -v npm 2>/dev/null)
 CHIP_STAMP := chip/node_modules/.installed
 CHIP := $(if $(NPM),$(CHIP_STAMP))
 
-.PHONY: demo test bench bench-safety derive-safety chip-costs bench-chip clean browser panel-screenshot
+.PHONY: demo test docs bench bench-safety derive-safety chip-costs bench-chip clean browser panel-screenshot
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -25,6 +25,10 @@ demo: $(STAMP)
 
 test: $(STAMP) browser $(CHIP)
 	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/python -m pytest
+
+# The documentation site, offline, into site/ (strict: a warning fails it; docgen/ draws the pictures).
+docs: $(STAMP)
+	NO_MKDOCS_2_WARNING=1 $(BIN)/python -m mkdocs build --strict --quiet
 
 bench: $(STAMP)
 	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/python bench/run.py
@@ -55,4 +59,4 @@ bench-chip: $(STAMP) $(CHIP)
 	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/python bench/chip_bench.py
 
 clean:
-	rm -rf $(VENV) build *.egg-info chip/node_modules
+	rm -rf $(VENV) build site *.egg-info chip/node_modules

@@ -25,6 +25,21 @@ ALL_OPTIONS = ("bus", "protocol", "config", "json")
 USAGE, DEVICE, INTERNAL = 2, 1, 70  # exit statuses
 
 
+class _Formatter(argparse.HelpFormatter):
+    """Wraps paragraphs as usual but keeps indented lines (the examples) as they are."""
+
+    def _fill_text(self, text: str, width: int, indent: str) -> str:
+        return "\n".join(indent + line if line.startswith(" ") else super(_Formatter, self)._fill_text(line, width, indent)
+                         for line in text.splitlines())
+
+
+def examples_text(examples: Sequence[tuple[str, str]]) -> str | None:
+    """A command's EXAMPLES as the epilog of its `--help` (None without any)."""
+    if not examples:
+        return None
+    return "examples:\n" + "\n".join(f"  {command}\n      {what}" for command, what in examples)
+
+
 class _Parser(argparse.ArgumentParser):
     """Usage errors in one line, like every other error."""
 
@@ -63,7 +78,8 @@ def build_parser() -> argparse.ArgumentParser:
         module = importlib.import_module(f".commands.{name}", __package__)
         uses = tuple(getattr(module, "USES", ALL_OPTIONS))
         command = sub.add_parser(module.NAME, parents=[_common(uses, top=False)], help=module.HELP,
-                                 description=module.HELP)
+                                 description=module.HELP, epilog=examples_text(getattr(module, "EXAMPLES", ())),
+                                 formatter_class=_Formatter)
         module.add_arguments(command)
         command.set_defaults(handler=module.run, uses=uses)
     return parser

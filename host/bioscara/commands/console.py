@@ -27,6 +27,11 @@ from .options import count, non_negative
 
 NAME = "console"
 HELP = "a joint's serial debug console: log lines, status, trace capture to CSV, live trace plot"
+EXAMPLES = (
+    ('bioscara console /dev/ttyACM0', "a joint's debug console: log lines, commands, history"),
+    ('bioscara console /dev/ttyACM0 -c status', 'one command, for scripts'),
+    ("bioscara console /dev/ttyACM0 -c 'trace on' --duration 5 --capture trace.csv", '5 s of stall-detector trace to CSV'),
+)
 USES = ()  # a serial port, not the bus; interactive text, not JSON
 
 JOINT_COMMANDS = ("status", "regs", "trace on", "trace off", "log ERROR", "log WARN", "log INFO",

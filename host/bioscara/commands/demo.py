@@ -8,6 +8,9 @@ from ..session import Session
 
 NAME = "demo"
 HELP = "simulated pick and place: configure, activate, home, pick, place (no hardware needed)"
+EXAMPLES = (
+    ('bioscara demo', 'the simulated pick and place, in this process (what `make demo` runs)'),
+)
 USES = ("config", "json")  # always the simulator in this process, whatever the bus
 
 

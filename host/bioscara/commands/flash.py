@@ -17,6 +17,11 @@ from .options import shown
 NAME = "flash"
 HELP = ("deploy the joint firmware onto a MicroPython board (mpremote): precompile, copy what changed, "
         "verify, reboot, and with --bus check the joint's version over the bus")
+EXAMPLES = (
+    ('bioscara flash --joint j1 --dry-run', 'no board needed: the files and sizes a stock Pico gets'),
+    ('bioscara flash /dev/ttyACM0 --joint j1', "deploy j1's firmware and configuration, verify, reset"),
+    ('bioscara flash /dev/ttyACM0 --joint j1 --bus smbus:1', '... then ask the joint over I2C what it runs'),
+)
 USES = ("bus", "json")  # --bus for the version check, which needs no --protocol
 
 

@@ -17,6 +17,10 @@ from .options import joint_name, positive
 
 NAME = "home"
 HELP = "home joints toward their configured end stops (Ctrl-C aborts: STOP)"
+EXAMPLES = (
+    ('bioscara home all', 'every joint toward its configured end stop (Ctrl-C sends STOP)'),
+    ('bioscara home j3 --direction -1', 'j3 toward its other end stop'),
+)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

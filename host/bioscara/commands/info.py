@@ -17,6 +17,9 @@ from .options import one_joint
 NAME = "info"
 HELP = ("identity, protocol, flags, position, velocity, last rejected frame and link statistics "
         "of a joint")
+EXAMPLES = (
+    ('bioscara info j2', 'everything j2 reports, with units'),
+)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -22,6 +22,11 @@ from .options import count, positive
 
 NAME = "monitor"
 HELP = "live position, velocity and flags of every joint (read only: nothing is enabled)"
+EXAMPLES = (
+    ('bioscara monitor', 'a live table of every joint'),
+    ('bioscara monitor --rate 20 --duration 3 --record run.csv', '3 s at 20 Hz, recorded to run.csv'),
+    ('bioscara monitor --json --samples 5', 'five samples as JSON Lines, then a summary line'),
+)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

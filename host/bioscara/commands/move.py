@@ -12,6 +12,10 @@ from .options import finite, one_joint, positive
 
 NAME = "move"
 HELP = "move a homed joint to a position (rad, or m for j2); the joint keeps holding afterwards"
+EXAMPLES = (
+    ('bioscara move j3 1.25', 'j3 to 1.25 rad; it keeps holding there'),
+    ('bioscara move j2 0.05', 'the lead-screw joint j2 to 0.05 m'),
+)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -13,6 +13,11 @@ from ..session import Session
 
 NAME = "panel"
 HELP = "the arm's control panel (Textual): lifecycle, homing, jog, STOP, live plot; --web serves it to a browser"
+EXAMPLES = (
+    ('bioscara panel', 'the control panel on the shared simulated arm'),
+    ('bioscara panel --bus smbus:1', "on a Raspberry Pi's joint bus (over SSH: `ssh -t pi@robot ...`)"),
+    ('bioscara panel --web', 'the same panel in a browser, on http://127.0.0.1:8000'),
+)
 USES = ("bus", "protocol", "config")  # a full-screen panel: no --json
 LOCAL = "127.0.0.1"
 

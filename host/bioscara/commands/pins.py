@@ -12,6 +12,10 @@ from ..session import Session
 
 NAME = "pins"
 HELP = "the wiring and pin map of a joint board (Pico, TMC2209, AS5600), from its joint configuration"
+EXAMPLES = (
+    ('bioscara pins j1', 'the wiring of the shipped j1 board'),
+    ('bioscara pins my_j1.json --markdown', 'of your own joint configuration, as a Markdown table'),
+)
 USES = ("json",)
 
 

@@ -10,6 +10,10 @@ from ..session import Session
 
 NAME = "plot"
 HELP = "plot a monitor recording (CSV or JSON Lines) to a PNG: position and velocity, one axis per unit"
+EXAMPLES = (
+    ('bioscara plot run.csv', 'run.png: position and velocity of the recording'),
+    ('bioscara plot run.csv -o homing.png', 'to another file'),
+)
 USES = ("json",)
 _DEFAULT_UNITS = {"j2": "m"}  # recordings from before units were recorded: the shipped arm's
 

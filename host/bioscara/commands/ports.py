@@ -16,6 +16,10 @@ from ..session import Session
 NAME = "ports"
 HELP = ("list the serial ports and say which are HIL bridges (--bus serial:PORT), joint debug ports "
         "(bioscara console PORT) or MicroPython boards (bioscara flash PORT)")
+EXAMPLES = (
+    ('bioscara ports', 'the serial ports and what each is'),
+    ('bioscara ports /dev/pts/7', 'also probe a pseudo-terminal (from `bioscara sim`)'),
+)
 USES = ("json",)
 # USB vendor ids of boards that run MicroPython: Raspberry Pi (Pico), MicroPython's own.
 MICROPYTHON_VIDS = {0x2E8A: "Raspberry Pi", 0xF055: "MicroPython"}

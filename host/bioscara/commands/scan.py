@@ -24,6 +24,10 @@ from ..session import Session
 NAME = "scan"
 HELP = ("list what answers on the bus (identity, firmware, spec hash, flags) and check it against the "
         "configuration: missing, misaddressed and unexpected joints are problems (exit status 1)")
+EXAMPLES = (
+    ('bioscara scan', 'what answers on the bus, checked against the configuration'),
+    ('bioscara scan --bus smbus:1 --json', 'the same on a real arm, as JSON'),
+)
 COLUMNS = ("address", "joint", "kind", "firmware", "protocols", "spec hash", "flags", "problems")
 USES = ("bus", "config", "json")  # it reports the protocols each joint serves: no --protocol to choose one
 

@@ -27,6 +27,10 @@ from .options import count, positive
 
 NAME = "shell"
 HELP = "interactive console: communicator, arm lifecycle, command modes, registers (`help` inside)"
+EXAMPLES = (
+    ('bioscara shell', 'the arm console on the shared simulated arm (`help` inside)'),
+    ("printf 'configure\\nactivate\\nstate\\n' | bioscara shell", 'a script on stdin; exit status 1 at the first failing line'),
+)
 USES = ("bus", "protocol", "config")
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

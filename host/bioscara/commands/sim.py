@@ -22,6 +22,11 @@ NAME = "sim"
 HELP = ("the shared simulated arm behind the default `sim:` bus: start it (also done by the first "
         "command that needs it), show it, stop it (its state is kept until then); --pty: a separate "
         "arm in the foreground behind pseudo-terminals, Ctrl-C stops it")
+EXAMPLES = (
+    ('bioscara sim', 'start the shared simulated arm (or show it) and its terminals'),
+    ('bioscara sim stop', 'stop it (its state goes with it)'),
+    ('bioscara sim --pty', 'a separate arm in the foreground behind pseudo-terminals; Ctrl-C stops it'),
+)
 USES = ("config", "json")
 
 

@@ -10,6 +10,9 @@ from .power import each_joint
 
 NAME = "stop"
 HELP = "stop every joint at once (RPM 0; aborts a running homing)"
+EXAMPLES = (
+    ('bioscara stop', 'STOP every joint at once'),
+)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

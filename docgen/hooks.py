@@ -1,0 +1,59 @@
+"""MkDocs hooks (mkdocs.yml `hooks:`): the generated sections and pictures of the site.
+
+A page asks for a generated section with `<!-- generated: NAME -->` alone on a line; an unknown
+name, or a generator that fails, fails the build. Pictures are added as generated files, so the
+strict build checks every link to them and nothing generated is committed.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Callable
+
+from mkdocs.config.defaults import MkDocsConfig
+from mkdocs.exceptions import PluginError
+from mkdocs.structure.files import File, Files
+from mkdocs.structure.pages import Page
+
+from docgen import cli_reference, errors_reference, layout, pictures, protocol_reference
+
+SECTIONS: dict[str, Callable[[], str]] = {
+    "commands": cli_reference.markdown,
+    "protocol-facts": protocol_reference.facts,
+    "flags": protocol_reference.flags,
+    "registers": protocol_reference.registers,
+    "error-codes": protocol_reference.error_codes,
+    "reject-reasons": protocol_reference.reject_reasons,
+    "v2-map": protocol_reference.v2_map,
+    "exceptions": errors_reference.exceptions,
+    "host-messages": errors_reference.messages,
+    "reject-causes": errors_reference.reject_reasons,
+    "verdict-causes": errors_reference.verdicts,
+    "firmware-layout": layout.firmware,
+    "host-layout": layout.host,
+    "hil-bridge-layout": layout.hil_bridge,
+}
+MARKER = re.compile(r"^<!-- generated: ([\w-]+) -->$", re.M)
+
+
+def on_files(files: Files, config: MkDocsConfig) -> Files:
+    generated = {
+        "img/architecture.svg": pictures.architecture(),
+        "img/homing.png": pictures.homing_trace(),
+        **{f"img/protocol-{name}.svg": svg for name, svg in pictures.protocol_layouts().items()},
+    }
+    for path, content in generated.items():
+        files.append(File.generated(config, path, content=content))
+    return files
+
+
+def on_page_markdown(markdown: str, page: Page, config: MkDocsConfig, files: Files) -> str:
+    def section(match: re.Match[str]) -> str:
+        name = match.group(1)
+        if name not in SECTIONS:
+            raise PluginError(f"{page.file.src_uri}: no generated section {name!r} (docgen/hooks.py SECTIONS)")
+        try:
+            return SECTIONS[name]()
+        except Exception as exc:
+            raise PluginError(f"{page.file.src_uri}: generating {name!r} failed: {exc}") from exc
+    return MARKER.sub(section, markdown)
