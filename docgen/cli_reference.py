@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+from types import ModuleType
 
 from bioscara import cli
 from bioscara.commands import COMMANDS
@@ -43,6 +44,11 @@ def _usage(parser: argparse.ArgumentParser) -> str:
     return " ".join(usage.removeprefix("usage:").split())
 
 
+def command_modules() -> list[ModuleType]:
+    """The command modules, in the CLI's order."""
+    return [importlib.import_module(f"bioscara.commands.{name}") for name in COMMANDS]
+
+
 def markdown() -> str:
     """Every command, its options (from the parser) and its examples (the module's EXAMPLES)."""
     parser = cli.build_parser()
@@ -56,12 +62,11 @@ def markdown() -> str:
     out += ["", "<a id=\"common-options\"></a>The common options, taken by every command that uses them "
             "(listed with each command; `--json` and `-v` also go before the command):", "",
             "| option | meaning |", "|---|---|", *[_option_row(a) for a in common]]
-    for module_name in COMMANDS:
-        module = importlib.import_module(f"bioscara.commands.{module_name}")
+    for module in command_modules():
         name, sub = module.NAME, commands[module.NAME]
         examples = getattr(module, "EXAMPLES", ())
         if not examples:
-            raise ValueError(f"`bioscara {name}` has no EXAMPLES (host/bioscara/commands/{module_name}.py)")
+            raise ValueError(f"`bioscara {name}` has no EXAMPLES ({module.__file__})")
         out += ["", f"## `bioscara {name}` {{#{name}}}", "", sub.description or "", "", "```text",
                 _usage(sub), "```", ""]
         rows = [_option_row(a) for a in sub._actions if a.dest != "help" and a.dest not in common_names]

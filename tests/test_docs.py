@@ -5,6 +5,7 @@ generated pages hold what the code holds, and every code block meant to run runs
 from __future__ import annotations
 
 import os
+import shlex
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -103,3 +104,15 @@ def test_the_block_runs(block: Block, tmp_path: Path) -> None:
                             timeout=COMMAND_TIMEOUT_S * 2, env=os.environ)
     assert result.returncode == 0, result.stderr
     assert "Traceback" not in result.stderr
+
+
+def test_every_example_parses() -> None:
+    """Each command's EXAMPLES (its --help and the reference show them) is a valid command line."""
+    parser = cli.build_parser()
+    for module in cli_reference.command_modules():
+        for line, what in module.EXAMPLES:
+            command = line.rsplit("| ", 1)[-1]  # `printf ... | bioscara shell`: the bioscara part
+            words = shlex.split(command)
+            assert words[0] == "bioscara" and words[1] == module.NAME, line
+            assert what, line
+            parser.parse_args(words[1:])  # a usage error exits (SystemExit fails the test)
