@@ -34,6 +34,9 @@ SECTIONS: dict[str, Callable[[], str]] = {
     "hil-bridge-layout": layout.hil_bridge,
 }
 MARKER = re.compile(r"^<!-- generated: ([\w-]+) -->$", re.M)
+# A repository path in backquotes: it must exist, so a moved or renamed module fails the build.
+PATH = re.compile(r"`((?:firmware|host|hil_bridge|tests|bench|chip|docgen)/[\w./-]*[\w/])(?:::\w+)?`")
+ROOT = pictures.ROOT
 
 
 def on_files(files: Files, config: MkDocsConfig) -> Files:
@@ -56,4 +59,8 @@ def on_page_markdown(markdown: str, page: Page, config: MkDocsConfig, files: Fil
             return SECTIONS[name]()
         except Exception as exc:
             raise PluginError(f"{page.file.src_uri}: generating {name!r} failed: {exc}") from exc
+    stale = sorted({path for path in PATH.findall(markdown)
+                    if ".." not in path and "node_modules" not in path and not (ROOT / path).exists()})
+    if stale:
+        raise PluginError(f"{page.file.src_uri} names paths that do not exist: {', '.join(stale)}")
     return MARKER.sub(section, markdown)

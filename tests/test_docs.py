@@ -10,6 +10,7 @@ import subprocess
 import sys
 from collections.abc import Iterator
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 
@@ -116,3 +117,13 @@ def test_every_example_parses() -> None:
             assert words[0] == "bioscara" and words[1] == module.NAME, line
             assert what, line
             parser.parse_args(words[1:])  # a usage error exits (SystemExit fails the test)
+
+
+@pytest.mark.parametrize("markdown", ["see `firmware/joint/no_such_module.py`", "<!-- generated: no-such-table -->"])
+def test_a_stale_reference_fails_the_build(markdown: str) -> None:
+    from mkdocs.exceptions import PluginError
+
+    from docgen import hooks
+    page = SimpleNamespace(file=SimpleNamespace(src_uri="page.md"))
+    with pytest.raises(PluginError, match="page.md"):
+        hooks.on_page_markdown(markdown, page, None, None)  # type: ignore[arg-type]
