@@ -46,3 +46,10 @@ def test_the_readme_session_runs_as_written(state_dir: Path, tmp_path: Path) -> 
 
 def test_the_readme_is_short() -> None:
     assert len(README.read_bytes()) <= MAX_README_BYTES
+
+
+def test_the_readme_links_to_pages_that_exist() -> None:
+    links = re.findall(r"\]\(([^)#]+)(?:#[^)]*)?\)", README.read_text())
+    local = [link for link in links if "://" not in link]
+    assert "docs/hardware.md" in local
+    assert [link for link in local if not (README.parent / link).exists()] == []
