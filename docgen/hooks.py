@@ -36,7 +36,31 @@ SECTIONS: dict[str, Callable[[], str]] = {
 MARKER = re.compile(r"^<!-- generated: ([\w-]+) -->$", re.M)
 # A repository path in backquotes: it must exist, so a moved or renamed module fails the build.
 PATH = re.compile(r"`((?:firmware|host|hil_bridge|tests|bench|chip|docgen)/[\w./-]*[\w/])(?:::\w+)?`")
+# A file named by its path inside a package (`core/irq.py`, `test_stall.py`): some file of the
+# project must end with it. Board paths (`/main.py`, `joint/core.mpy`) are not the project's.
+MODULE = re.compile(r"`([\w/]*\w\.(?:py|json|mjs))`")
+BOARD_PATHS = {"main.py", "joint_config.json", "bridge_config.json", "boot.py"}
 ROOT = pictures.ROOT
+SOURCES = ("firmware", "host", "hil_bridge", "tests", "bench", "chip/src", "chip/test", "chip", "docgen")
+
+
+def _project_files() -> set[str]:
+    files = set()
+    for top in SOURCES:
+        for path in (ROOT / top).rglob("*"):
+            if path.suffix in (".py", ".json", ".mjs") and "node_modules" not in path.parts:
+                files.add(path.relative_to(ROOT).as_posix())
+    return files
+
+
+def stale_references(markdown: str) -> list[str]:
+    """Backquoted repository paths and module file names in `markdown` that name no file."""
+    stale = {path for path in PATH.findall(markdown)
+             if ".." not in path and "node_modules" not in path and not (ROOT / path).exists()}
+    files = _project_files()
+    stale |= {name for name in MODULE.findall(markdown) if name not in BOARD_PATHS and not name.startswith(("/", *SOURCES))
+              and not any(f == name or f.endswith("/" + name) for f in files)}
+    return sorted(stale)
 
 
 def on_files(files: Files, config: MkDocsConfig) -> Files:
@@ -59,8 +83,7 @@ def on_page_markdown(markdown: str, page: Page, config: MkDocsConfig, files: Fil
             return SECTIONS[name]()
         except Exception as exc:
             raise PluginError(f"{page.file.src_uri}: generating {name!r} failed: {exc}") from exc
-    stale = sorted({path for path in PATH.findall(markdown)
-                    if ".." not in path and "node_modules" not in path and not (ROOT / path).exists()})
+    stale = stale_references(markdown)
     if stale:
         raise PluginError(f"{page.file.src_uri} names paths that do not exist: {', '.join(stale)}")
     return MARKER.sub(section, markdown)

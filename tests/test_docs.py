@@ -119,7 +119,8 @@ def test_every_example_parses() -> None:
             parser.parse_args(words[1:])  # a usage error exits (SystemExit fails the test)
 
 
-@pytest.mark.parametrize("markdown", ["see `firmware/joint/no_such_module.py`", "<!-- generated: no-such-table -->"])
+@pytest.mark.parametrize("markdown", ["see `firmware/joint/no_such_module.py`", "in `core/no_such_module.py`",
+                                      "<!-- generated: no-such-table -->"])
 def test_a_stale_reference_fails_the_build(markdown: str) -> None:
     from mkdocs.exceptions import PluginError
 
