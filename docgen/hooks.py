@@ -7,6 +7,7 @@ strict build checks every link to them and nothing generated is committed.
 
 from __future__ import annotations
 
+import importlib
 import re
 from collections.abc import Callable
 
@@ -40,6 +41,9 @@ PATH = re.compile(r"`((?:firmware|host|hil_bridge|tests|bench|chip|docgen)/[\w./
 # project must end with it. Board paths (`/main.py`, `joint/core.mpy`) are not the project's.
 MODULE = re.compile(r"`([\w/]*\w\.(?:py|json|mjs))`")
 BOARD_PATHS = {"main.py", "joint_config.json", "bridge_config.json", "boot.py"}
+# A dotted name of the host package or of the firmware as the board imports it (`joint.spec`):
+# it must import (then resolve attribute by attribute).
+DOTTED = re.compile(r"`((?:bioscara|joint)(?:\.\w+)+)(?:\(\))?`")
 ROOT = pictures.ROOT
 SOURCES = ("firmware", "host", "hil_bridge", "tests", "bench", "chip/src", "chip/test", "chip", "docgen")
 
@@ -53,13 +57,30 @@ def _project_files() -> set[str]:
     return files
 
 
+def _resolves(name: str) -> bool:
+    parts = name.replace("joint.", "bioscara.firmware.", 1).split(".")
+    for end in range(len(parts), 0, -1):
+        try:
+            found: object = importlib.import_module(".".join(parts[:end]))
+        except ImportError:
+            continue
+        for attribute in parts[end:]:
+            if not hasattr(found, attribute):
+                return False
+            found = getattr(found, attribute)
+        return True
+    return False
+
+
 def stale_references(markdown: str) -> list[str]:
-    """Backquoted repository paths and module file names in `markdown` that name no file."""
+    """Backquoted repository paths, module file names and dotted module names in `markdown` that
+    name nothing in the project."""
     stale = {path for path in PATH.findall(markdown)
              if ".." not in path and "node_modules" not in path and not (ROOT / path).exists()}
     files = _project_files()
     stale |= {name for name in MODULE.findall(markdown) if name not in BOARD_PATHS and not name.startswith(("/", *SOURCES))
               and not any(f == name or f.endswith("/" + name) for f in files)}
+    stale |= {name for name in DOTTED.findall(markdown) if not _resolves(name)}
     return sorted(stale)
 
 

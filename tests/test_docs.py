@@ -120,6 +120,7 @@ def test_every_example_parses() -> None:
 
 
 @pytest.mark.parametrize("markdown", ["see `firmware/joint/no_such_module.py`", "in `core/no_such_module.py`",
+                                      "`bioscara.no_such_module`", "`joint.app.no_such_function`",
                                       "<!-- generated: no-such-table -->"])
 def test_a_stale_reference_fails_the_build(markdown: str) -> None:
     from mkdocs.exceptions import PluginError

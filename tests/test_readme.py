@@ -53,3 +53,8 @@ def test_the_readme_links_to_pages_that_exist() -> None:
     local = [link for link in links if "://" not in link]
     assert "docs/hardware.md" in local
     assert [link for link in local if not (README.parent / link).exists()] == []
+
+
+def test_the_readme_names_no_stale_module() -> None:
+    from docgen.hooks import stale_references
+    assert stale_references(README.read_text()) == []
