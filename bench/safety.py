@@ -49,8 +49,8 @@ from typing import Iterable
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT / "firmware")]
 
-from joint import config as joint_config  # noqa: E402
-from joint import protocol as P  # noqa: E402
+from joint.config import schema as joint_config  # noqa: E402
+from joint.spec import protocol as P  # noqa: E402
 from joint.sim import mechanics as M  # noqa: E402
 from joint.sim.bus import SimJointBus, default_costs  # noqa: E402
 from joint.sim.clock import VirtualClock  # noqa: E402
@@ -99,7 +99,7 @@ class Rig:
             joint, payload_kg, "nominal" if noise == "as5600" else noise, encoder))
         self.stepper.set_end_stops(low_deg, high_deg)
         # The shipped per-joint config (its stall and homing constants), on the simulated motor.
-        cfg = joint_config.load(str(ROOT / "firmware" / "joint" / "configs" / f"{joint}.json"))
+        cfg = joint_config.load(str(ROOT / "firmware" / "joint" / "config" / f"{joint}.json"))
         assert cfg.valid, cfg.errors
         cfg.motor = {"backend": "sim"}
         if detector != "original" and not self._config_detector(cfg, detector):

@@ -5,14 +5,14 @@ hardware at import time. An invalid configuration or a motor backend that fails 
 the joint disabled, reporting why on the serial console, instead of crashing.
 """
 
-from .clock import MonotonicClock
-from .core import JointController
-from .debug import DebugConsole, UsbStdio
-from .i2c_target import I2CTargetAdapter
-from .log import Logger
-from .protocol_v2 import MEM_ADDRSIZE
-from .settings import CONFIG_FILE
-from .v2 import ProtocolSwitch
+from .core.clock import MonotonicClock
+from .core.controller import JointController
+from .console.debug import DebugConsole, UsbStdio
+from .links.i2c_target import I2CTargetAdapter
+from .console.log import Logger
+from .spec.protocol_v2 import MEM_ADDRSIZE
+from .config.settings import CONFIG_FILE
+from .links.memmap_v2 import ProtocolSwitch
 
 # RP2040 DW_apb_i2c IC_STATUS of I2C0/I2C1 and its SLV_ACTIVITY bit: set while a transaction
 # addressed to the target is in progress. The v2 swap waits for it to clear.
@@ -32,7 +32,7 @@ def build_motor(cfg):
 
 def build(machine, config_path=CONFIG_FILE, clock=None, write=None):
     """Load the configuration and create the controller; returns (core, cfg, log)."""
-    from . import config  # boot only (see _drop_boot_only)
+    from .config import schema as config  # boot only (see _drop_boot_only)
     cfg = config.load(config_path)
     log = Logger(cfg.joint or "joint", write=write)
     motor = None
@@ -51,8 +51,8 @@ def build(machine, config_path=CONFIG_FILE, clock=None, write=None):
 # schema and checks, the Pico backend's defaults and validation, the register spec's objects, the
 # builders of the controller and its IRQ tables (about 28 KB of heap together). The running joint
 # keeps what it needs of them in settings.py's objects, regtable.RegisterTable and its own state.
-BOOT_ONLY = ("config", "core_init", "irq_init", "pico.motor_config", "pico.tmc2209_setup", "protocol",
-             "protocol_v2")
+BOOT_ONLY = ("config.schema", "core.controller_init", "core.irq_init", "pico.motor_config",
+             "pico.tmc2209_setup", "spec.protocol", "spec.protocol_v2")
 
 
 def _drop_boot_only():

@@ -10,10 +10,11 @@ MicroPython only (CPython boxes every int): it returns None there.
 import gc
 import sys
 
-from joint import config, protocol as P
-from joint.core import JointController
-from joint.i2c_target import I2CTargetAdapter
-from joint.log import Logger
+from joint.config import schema as config
+from joint.spec import protocol as P
+from joint.core.controller import JointController
+from joint.links.i2c_target import I2CTargetAdapter
+from joint.console.log import Logger
 from joint.pico.as5600 import AS5600, RAW_ANGLE, STATUS, CONF
 from joint.pico.motor import PicoStepper
 from joint.pico.stepgen import StepGenerator, burst_pulses

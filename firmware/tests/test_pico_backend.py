@@ -17,7 +17,7 @@ from joint.pico.motor import PicoStepper
 from joint.pico.motor_config import DEFAULTS, validate_motor_config
 from joint.pico.stepgen import StepGenerator
 from joint.pico.tmc2209 import TMC2209, TMCError
-from joint.fixed import ANGLE_Q, RPM_Q, STEPS_Q, to_q
+from joint.motion.fixed import ANGLE_Q, RPM_Q, STEPS_Q, to_q
 from joint.sim.clock import VirtualClock
 
 RPM = 1 << RPM_Q  # the HAL's fixed-point units (hal.py)
@@ -889,7 +889,7 @@ def test_the_closed_loop_reads_the_state_words_where_encoder_and_ramp_keep_them(
     if MICROPYTHON:
         return  # const() names with a leading underscore are no module attributes there
     from joint.pico import motor
-    from joint import fixed, tickramp
+    from joint.motion import fixed, tickramp
     assert (motor._ES_COUNT, motor._ES_AT, motor._ES_NEXT, motor._RS_X, motor._RS_V, motor._LIMIT) == (
         enc.S_COUNT, enc.S_AT, enc.S_NEXT, tickramp.S_X, tickramp.S_V, fixed.LIMIT)
     assert (motor._RS_MODE, motor._RS_VMAX, motor._VELOCITY_POS, motor._VELOCITY_NEG) == (

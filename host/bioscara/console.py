@@ -23,7 +23,7 @@ from rich.text import Text
 
 from . import trace_plot
 from .errors import CommError
-from .firmware.debug_commands import TRACE_COLUMNS, TRACE_UNITS
+from .firmware.console.debug_commands import TRACE_COLUMNS, TRACE_UNITS
 from .serial_port import DEFAULT_BAUD, PORT_ERRORS, open_port
 
 CSV_HEADER = ("time_s",) + TRACE_COLUMNS

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from enum import IntEnum
 
-from .firmware import protocol
+from .firmware.spec import protocol
 
 ErrorCode = IntEnum("ErrorCode", {name: value for value, name, _ in protocol.ERROR_CODES})
 ErrorCode.__doc__ = "Error codes of the original Bioscara driver (uErr.h)."

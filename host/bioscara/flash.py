@@ -26,9 +26,9 @@ from typing import Any, Callable
 
 from .bus import Bus
 from .errors import BioscaraError, ConfigError
-from .firmware import config as firmware_config
-from .firmware.protocol import PROTOCOL_VERSION
-from .firmware.version import FIRMWARE_VERSION
+from .firmware.config import schema as firmware_config
+from .firmware.spec.protocol import PROTOCOL_VERSION
+from .firmware.spec.version import FIRMWARE_VERSION
 from .joint import Joint
 from .mpboard import Board, BoardInfo, FlashError, dotted
 
@@ -39,7 +39,7 @@ CONFIG_PATH = "/" + firmware_config.CONFIG_FILE
 MAIN_PATH = "/main.py"
 MANAGED = (MAIN_PATH, CONFIG_PATH, PACKAGE_DIR)
 BOARD_MAIN = "board_main.py"  # in the firmware package; goes to the board root as /main.py
-NOT_ON_BOARD = frozenset({"sim", "configs", "tests", "__pycache__", BOARD_MAIN})
+NOT_ON_BOARD = frozenset({"sim", "tests", "__pycache__", BOARD_MAIN})
 APP_MODULE = "joint.app"
 FIRMWARE = dotted(FIRMWARE_VERSION)  # the version this host deploys and expects back
 # What mpboard's PROBE reports on a stock Raspberry Pi Pico with MicroPython v1.28.0 (the emulated
@@ -85,7 +85,7 @@ def joint_config(joint: str) -> tuple[bytes, firmware_config.JointConfig]:
     if joint not in JOINTS:
         raise ConfigError(f"no joint {joint!r}; use one of {', '.join(JOINTS)}")
     name = f"{joint}.json"
-    text = resources.files("bioscara.firmware.configs").joinpath(name).read_bytes()
+    text = resources.files("bioscara.firmware.config").joinpath(name).read_bytes()
     cfg = firmware_config.parse(json.loads(text), name)
     if not cfg.valid:
         raise ConfigError("; ".join(cfg.errors))

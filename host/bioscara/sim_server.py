@@ -31,8 +31,8 @@ from collections.abc import Sequence
 from typing import Any
 
 from .bus.sim import SimJointSpec, build_joint
-from .firmware.clock import MonotonicClock
-from .firmware.debug import DebugConsole
+from .firmware.core.clock import MonotonicClock
+from .firmware.console.debug import DebugConsole
 from .firmware.sim.bus import SimJointBus
 from .firmware.sim.clock import VirtualClock
 from .hil_bridge.bridge import Bridge

@@ -25,7 +25,7 @@ Units: 4096 counts per revolution. With the library's 51200 usteps per revolutio
 
 from array import array
 
-from ..emitters import micropython, ptr8, ptr32, state_word
+from ..micro import micropython, ptr8, ptr32, state_word
 
 try:
     from micropython import const

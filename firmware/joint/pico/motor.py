@@ -1,6 +1,6 @@
 """PicoStepper: the MotorHAL on a Raspberry Pi Pico, a TMC2209 and an AS5600.
 
-The TMC5130 of the uStepper generated its own ramp; here joint.tickramp.TickRamp plays that part in the
+The TMC5130 of the uStepper generated its own ramp; here joint.motion.tickramp.TickRamp plays that part in the
 main loop and the PIO turns it into STEP/DIR pulses (stepgen.py). update() does what the
 library's 1.54 kHz timer interrupt did (ustepper-model.md section 3): sample the encoder, run the
 velocity estimator and, with the closed loop on, re-synchronise the driver position to the encoder
@@ -24,7 +24,7 @@ Default wiring (motor_config.DEFAULT_PINS; the joint bus target is I2C0 on GP4 S
     TMC2209 MS1/MS2 set the UART node address (tmc_address); SPREAD tied low.
 """
 
-from ..emitters import micropython, ptr32
+from ..micro import micropython, ptr32
 
 try:
     from micropython import const
@@ -32,10 +32,10 @@ except ImportError:
     def const(x):
         return x
 
-from ..fixed import muldiv
-from ..hal import MotorHAL
-from ..tickramp import POSITIONING, VELOCITY_NEG, _run as _ramp_run
-from ..velocity import _update as _velocity_update
+from ..motion.fixed import muldiv
+from ..motion.hal import MotorHAL
+from ..motion.tickramp import POSITIONING, VELOCITY_NEG, _run as _ramp_run
+from ..motion.velocity import _update as _velocity_update
 from . import tmc2209 as tmc
 from .as5600 import decode_status
 from .as5600 import next_sample as _enc_next

@@ -5,9 +5,9 @@ A module of its own because nothing here runs after boot: `app.build` drops it f
 `sys.modules` once the joint is built, and its code and tables leave the heap.
 """
 
-from ..clock import MonotonicClock
-from ..tickramp import POSITIONING, TickRamp
-from ..velocity import FixedVelocityEstimator
+from ..core.clock import MonotonicClock
+from ..motion.tickramp import POSITIONING, TickRamp
+from ..motion.velocity import FixedVelocityEstimator
 from . import tmc2209 as tmc
 from .as5600 import AS5600, decode_status
 from .tmc2209_setup import chopconf, current_scale, tpowerdown, tpwmthrs

@@ -1,6 +1,6 @@
 """Step/dir pulses from an RP2040/RP2350 PIO state machine, fed one burst per main-loop tick.
 
-Scheme: the ramp generator (joint.ramp.Ramp) runs in the main loop. Each update() turns the
+Scheme: the ramp generator (joint.motion.tickramp.TickRamp) runs in the main loop. Each update() turns the
 ramp's advance since the last tick into one burst word "N pulses, direction d, period P" and puts
 it into the state machine's TX FIFO. The PIO program sets DIR, emits the N pulses at P cycles
 each and pushes the word back into the RX FIFO as an acknowledgement. The driver position is the
@@ -31,7 +31,7 @@ Speed changes take effect at the next tick: one loop period of latency.
 
 from array import array
 
-from ..emitters import micropython, ptr32, state_word
+from ..micro import micropython, ptr32, state_word
 
 try:
     from micropython import const
@@ -182,7 +182,7 @@ class StepGenerator:
         return self.s[2] == 0
 
 
-# The viper functions read the state's words sign-extended, as joint.ramp._run explains.
+# The viper functions read the state's words sign-extended, as joint.motion.tickramp._run explains.
 # PIO registers as 32-bit word indices (RP2040 datasheet 3.7): FSTAT (RXEMPTY bits 8..11), TXF0..3,
 # RXF0..3.
 _FSTAT = const(1)

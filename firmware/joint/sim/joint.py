@@ -1,12 +1,12 @@
 """A simulated joint: the real firmware core and I2C paths (legacy IRQ and v2 memory map)
 driving a simulated stepper."""
 
-from .. import config as joint_config
-from .. import protocol_v2 as V
-from ..core import JointController
-from ..i2c_target import I2CTargetAdapter
-from ..log import INFO, Logger
-from ..v2 import ProtocolSwitch
+from ..config import schema as joint_config
+from ..spec import protocol_v2 as V
+from ..core.controller import JointController
+from ..links.i2c_target import I2CTargetAdapter
+from ..console.log import INFO, Logger
+from ..links.memmap_v2 import ProtocolSwitch
 from .fixed_hal import FixedPointHAL
 from .i2c_target import FakeI2CTarget
 

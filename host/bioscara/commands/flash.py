@@ -88,7 +88,7 @@ def run(args: argparse.Namespace, session: Session) -> int:
 
 def _show_config(args: argparse.Namespace, session: Session) -> int:
     """The board's /joint_config.json, checked as its firmware checks it at boot."""
-    from ..firmware import config as firmware_config
+    from ..firmware.config import schema as firmware_config
 
     board = mpboard.open_board(args.port)
     try:

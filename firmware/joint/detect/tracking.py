@@ -27,7 +27,7 @@ the Q8 history is re-based before it could leave 32 bits, and a jump no motor ma
 
 from array import array
 
-from .emitters import micropython
+from ..micro import micropython
 
 try:
     from micropython import const

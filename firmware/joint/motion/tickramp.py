@@ -1,12 +1,12 @@
-"""The TMC5130 ramp generator of joint.ramp in integers, one control tick at a time: the chip's.
+"""The TMC5130 ramp generator of joint.sim.ramp in integers, one control tick at a time: the chip's.
 
 A module of its own so that the board loads neither the float `Ramp` nor `math` (heap). The mode
-constants are defined here and re-exported by joint.ramp.
+constants are defined here and re-exported by joint.sim.ramp.
 """
 
 from array import array
 
-from .emitters import micropython, ptr32, state_word
+from ..micro import micropython, ptr32, state_word
 
 try:
     from micropython import const

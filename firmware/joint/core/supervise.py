@@ -15,9 +15,9 @@ tracking detector (tracking.py, the encoder no longer following the field);
 `set_stall_detector()` switches at run time (bench, tests).
 """
 
-from .emitters import micropython
-from .fixed import muldiv
-from .protocol import FLAG_BUSY, FLAG_NOTENABLED, FLAG_NOTHOMED, FLAG_STALL
+from ..micro import micropython
+from ..motion.fixed import muldiv
+from ..spec.protocol import FLAG_BUSY, FLAG_NOTENABLED, FLAG_NOTHOMED, FLAG_STALL
 
 try:
     from micropython import const

@@ -15,7 +15,7 @@ sampling rate.
 
 from array import array
 
-from .emitters import micropython, ptr32
+from ..micro import micropython, ptr32
 
 try:
     from micropython import const

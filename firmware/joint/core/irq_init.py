@@ -10,7 +10,7 @@ viper code no lookup). irq.py has the same offsets as its own constants (test_ir
 """
 
 from .irq import FTAB_DISABLED, QUEUE_SLOTS, SLOT, judge_for
-from .protocol import (
+from ..spec.protocol import (
     BY_ADDR, F32, HOME, I32, MOVEANGLE, MOVESTEPS, MOVETOANGLE, PING, REJECT_LENGTH,
     REJECT_UNKNOWN_REGISTER, REJECT_UNSUPPORTED, SETRPM, U8, U16,
 )

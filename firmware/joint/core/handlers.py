@@ -7,9 +7,9 @@ streaming SETRPM or MOVETOANGLE at its cycle rate creates no float on the board.
 
 import struct
 
-from .emitters import micropython
-from .fixed import ANGLE_Q, RPM_Q, STEPS_Q, f32_to_q, i32, muldiv
-from .protocol import WATCHDOG
+from ..micro import micropython
+from ..motion.fixed import ANGLE_Q, RPM_Q, STEPS_Q, f32_to_q, i32, muldiv
+from ..spec.protocol import WATCHDOG
 
 
 def _full_steps(q, off):

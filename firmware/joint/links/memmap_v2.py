@@ -20,18 +20,18 @@ Allocation-free once constructed (tests run it with the heap locked under MicroP
 
 import gc
 
-from .protocol import ANGLEMOVED, GETENCODERRPM, LASTERROR
-from .protocol_v2 import (  # numbers and tables only: the board forgets protocol_v2 after boot
+from ..spec.protocol import ANGLEMOVED, GETENCODERRPM, LASTERROR
+from ..spec.protocol_v2 import (  # numbers and tables only: the board forgets protocol_v2 after boot
     CRC_TABLE, CMD_NONE, FROM_LEGACY, MAILBOX, MAILBOX_SIZE, MEM_SIZE, M_CMD, M_CRC, M_PAYLOAD,
     M_SEQ, PAYLOAD_SIZE, POSITION_MAX, POSITION_Q, PROTOCOL_LEGACY, PROTOCOL_V2, REASON_COMMAND,
     REASON_CRC, REASON_FRAME, REASON_OK, REASON_SEQUENCE, REASON_SHIFT, REASON_VALUE, SEQ_MASK,
     SEQ_WINDOW, SILENCE_MS, STATE, STATE_SIZE, STATUS_FLAGS, STATUS_MARKER, S_ACK, S_CRC,
     S_POSITION, S_VELOCITY, VELOCITY_MARKER, VELOCITY_MAX, VELOCITY_Q,
 )
-from .fixed import f32_to_q
+from ..motion.fixed import f32_to_q
 from .i2c_target import IRQ_END_WRITE
-from .irq import COUNTER_MASK  # counters wrap before they would become long ints
-from .regtable import NOT_A_COMMAND
+from ..core.irq import COUNTER_MASK  # counters wrap before they would become long ints
+from ..spec.regtable import NOT_A_COMMAND
 
 try:
     from micropython import const

@@ -12,7 +12,7 @@ struct.pack("<f", n / 2**q).
 
 import struct
 
-from .emitters import micropython, ptr8, ptr32
+from ..micro import micropython, ptr8, ptr32
 
 try:
     from micropython import const

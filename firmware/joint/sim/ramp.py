@@ -19,12 +19,12 @@ distance, brakes at dmax, reverses and comes back. Lowering vmax below |v| decel
 relabel (set_position) in positioning mode continues toward xtarget from the new x. Velocity modes
 use amax for acceleration and deceleration alike; HOLD keeps v. step() integrates each ramp segment
 exactly, so the result does not depend on how dt is sliced. The board runs its integer
-twin, joint.tickramp.TickRamp (this module is the simulator's: not loaded on the chip).
+twin, joint.motion.tickramp.TickRamp (this module is the simulator's: not loaded on the chip).
 """
 
 import math
 
-from .tickramp import HOLD, POSITIONING, VELOCITY_NEG, VELOCITY_POS
+from ..motion.tickramp import HOLD, POSITIONING, VELOCITY_NEG, VELOCITY_POS
 
 _BRAKE_EARLY = 1e-3  # usteps: rounding slack when deciding that the braking point is reached
 _LAND_SLACK = 1.0  # usteps: a brake ending this far past the target still lands on it (VSTOP)

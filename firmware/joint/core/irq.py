@@ -11,7 +11,7 @@ Every readable register's reply cache is the head of its own wire buffer, `paylo
 read writes the flags into the last byte and hands the whole buffer to the port, with no copy.
 """
 
-from .emitters import micropython, ptr8
+from ..micro import micropython, ptr8
 
 try:
     from micropython import const

@@ -5,10 +5,10 @@ A task holds BUSY while it runs; the main loop steps it when its wait is over (e
 how many milliseconds to wait) or a STOP cancelled it.
 """
 
-from .fixed import ANGLE_Q, RPM_Q, muldiv, store_q
-from .homing import HOMED, OUTCOMES, RUNNING
-from .protocol import FLAG_BUSY, FLAG_NOTHOMED, FLAG_STALL, HOMINGTRAVEL
-from .tracking import wrapped_diff
+from ..motion.fixed import ANGLE_Q, RPM_Q, muldiv, store_q
+from ..detect.homing import HOMED, OUTCOMES, RUNNING
+from ..spec.protocol import FLAG_BUSY, FLAG_NOTHOMED, FLAG_STALL, HOMINGTRAVEL
+from ..detect.tracking import wrapped_diff
 
 try:
     from micropython import const

@@ -2,9 +2,9 @@
 a joint nobody types to keeps only the line reader."""
 
 from . import log as L
-from .fixed import ANGLE_Q, RPM_Q
-from .supervise import DETECTOR_NAMES, ORIGINAL
-from .trace_line import TraceLine
+from ..motion.fixed import ANGLE_Q, RPM_Q
+from ..core.supervise import DETECTOR_NAMES, ORIGINAL
+from ..detect.trace_line import TraceLine
 
 TRACE_COLUMNS = ("raw", "despiked", "filtered", "speed", "set_speed", "threshold", "stall")
 TRACE_UNITS = ("usteps", "usteps", "usteps", "rad/s", "rad/s", "usteps", "")

@@ -6,11 +6,11 @@ supervision (`supervise.py`) and packs the reply caches the IRQ serves. Its writ
 reads are wrapped in `critical` sections, except the float caches: one 32-bit store each (store_q).
 """
 
-from .emitters import micropython
+from ..micro import micropython
 
-from .fixed import store_q
+from ..motion.fixed import store_q
 from .irq import FTAB_DISABLED, FTAB_HALTS
-from .protocol import FLAG_BUSY, FLAG_NOTENABLED
+from ..spec.protocol import FLAG_BUSY, FLAG_NOTENABLED
 
 try:
     from micropython import const

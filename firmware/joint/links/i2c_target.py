@@ -24,10 +24,10 @@ is kept here (`core.judge` judges a command; `core.on_frame` is the same for oth
 
 from array import array
 
-from .emitters import micropython, ptr8, ptr32
+from ..micro import micropython, ptr8, ptr32
 
-from .irq import FTAB_WLEN, REGISTER_SPACE
-from .protocol import FLAG_ERROR, MAX_FRAME, PING
+from ..core.irq import FTAB_WLEN, REGISTER_SPACE
+from ..spec.protocol import FLAG_ERROR, MAX_FRAME, PING
 
 try:
     from micropython import const

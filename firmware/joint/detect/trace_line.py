@@ -9,7 +9,7 @@ nothing: even a str or a memoryview slice per line cost 100-300 us in the runnin
 
 from array import array
 
-from .emitters import micropython, ptr8
+from ..micro import micropython, ptr8
 from .stall import speed_q18
 
 try:

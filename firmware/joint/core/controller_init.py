@@ -3,20 +3,20 @@ joint is built; the controller keeps only the state it made."""
 
 import struct
 
-from .fixed import ANGLE_Q, STEPS_Q, to_q
-from .homing import HomingMonitor
+from ..motion.fixed import ANGLE_Q, STEPS_Q, to_q
+from ..detect.homing import HomingMonitor
 from .irq_init import init as init_irq
-from .protocol import (
+from ..spec.protocol import (
     ACK, CHECKORIENTATION, CLEARSTALL, DISABLECLOSEDLOOP, DISABLESTALLGUARD,
     ENABLECLOSEDLOOP, ENABLESTALLGUARD, FLAG_BUSY, FLAGS_AT_BOOT, HOME, IDENTITY, MOVEANGLE,
     MOVESTEPS, MOVETOANGLE, PING, PROTOCOL, PROTOCOL_VERSION, SETBRAKEMODE, SETCURRENT, SETHOLDCURRENT,
     SETMAXACCELERATION, SETMAXDECELERATION, SETMAXVELOCITY, SETRPM, SETUP, SPEC_HASH, WATCHDOG,
 )
-from .regtable import RegisterTable
-from .stall import StallDetector
+from ..spec.regtable import RegisterTable
+from ..detect.stall import StallDetector
 from .supervise import DETECTOR_NAMES
-from .tracking import TrackingDetector
-from .version import FIRMWARE_VERSION
+from ..detect.tracking import TrackingDetector
+from ..spec.version import FIRMWARE_VERSION
 
 
 def init(core, hal, clock, cfg, log, critical):

@@ -5,7 +5,7 @@ which Raspberry Pi 0-3 controllers mishandle (reference/i2c-facts.md sections 3-
 from the main loop, right after `JointController.service()`.
 """
 
-from .protocol import MAX_FRAME, MAX_REPLY
+from ..spec.protocol import MAX_FRAME, MAX_REPLY
 
 
 class CircuitPythonTargetAdapter:

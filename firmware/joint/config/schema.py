@@ -170,7 +170,7 @@ def _parse_motor(cfg, motor):
         cfg.errors.append("%s: motor.backend = %r is not one of %s" % (cfg.source, backend, ", ".join(BACKENDS)))
         return
     if backend == "pico":
-        from .pico.motor_config import is_i2c_pin, validate_motor_config
+        from ..pico.motor_config import is_i2c_pin, validate_motor_config
         bus = cfg.i2c
         for key, scl, role in (("sda", False, "SDA"), ("scl", True, "SCL")):
             pin = getattr(bus, key)
