@@ -1,12 +1,17 @@
-"""`micropython.native` and `micropython.viper` under both interpreters. MicroPython's compiler
-handles the decorators by their names, so modules write `@micropython.native` after
-`from .emitters import micropython`; under CPython the decorators do nothing and the same files run
-as plain Python. Viper code takes `ptr8` and `ptr32` from here: on MicroPython the viper compiler turns
-`ptr8(buf)` into a raw byte pointer itself (`ptr32`: 32-bit words); under CPython it is the buffer, indexed the same way (bytes
-through a memoryview of their words)."""
+"""The one shim between MicroPython and CPython: `const`, `micropython.native`/`viper`, `ptr8`, `ptr32`.
+
+Modules write `from ..micro import const, micropython` and then `_X = const(1)`,
+`@micropython.native`: MicroPython's compiler handles `const` and the decorators by their names,
+so under MicroPython they are its own; under CPython `const` returns its argument, the decorators
+do nothing and the same files run as plain Python. Viper code takes `ptr8` and `ptr32` from here:
+on MicroPython the viper compiler turns `ptr8(buf)` into a raw byte pointer itself (`ptr32`: 32-bit
+words); under CPython it is the buffer, indexed the same way (bytes through a memoryview of their
+words). Imports nothing of the firmware: every package may import it.
+"""
 
 try:
     import micropython
+    from micropython import const
 except ImportError:
     class micropython:
         @staticmethod
@@ -17,6 +22,9 @@ except ImportError:
         def viper(function):
             return function
 
+    def const(value):
+        return value
+
 
 def ptr8(buf):
     return buf
@@ -25,14 +33,3 @@ def ptr8(buf):
 def ptr32(buf):
     # An int32 array is indexed by word already; bytes are seen as native-order words.
     return buf if hasattr(buf, "typecode") else memoryview(buf).cast("I")
-
-
-def state_word(i):
-    """A property over word i of the instance's int32 state array `s`: viper code works on the
-    array, Python code off the 1 kHz path uses the names."""
-    def get(self):
-        return self.s[i]
-
-    def put(self, value):
-        self.s[i] = value
-    return property(get, put)

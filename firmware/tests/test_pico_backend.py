@@ -156,7 +156,7 @@ class FakeI2CRegisters:
     on the wire), or with `hold` stays on the wire until finish(). A failing bus aborts it (NACK).
     CPython only: viper takes an address or a buffer, not this object, under MicroPython."""
 
-    typecode = "I"  # emitters.ptr32 passes it through
+    typecode = "I"  # micro.ptr32 passes it through
 
     def __init__(self, bus):
         self.bus = bus

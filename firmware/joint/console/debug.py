@@ -15,11 +15,7 @@ The commands live in debug_commands.py, imported by the first complete line: unt
 the board keeps only the line reader (a few KB of heap more for the control loop).
 """
 
-try:
-    from micropython import const
-except ImportError:
-    def const(value):
-        return value
+from ..micro import const
 
 _CHUNK = const(16)
 _LINE = const(64)

@@ -11,13 +11,7 @@ Every readable register's reply cache is the head of its own wire buffer, `paylo
 read writes the flags into the last byte and hands the whole buffer to the port, with no copy.
 """
 
-from ..micro import micropython, ptr8
-
-try:
-    from micropython import const
-except ImportError:
-    def const(value):
-        return value
+from ..micro import const, micropython, ptr8
 
 QUEUE_SLOTS = const(16)  # a power of two, so slot = counter % slots survives counter wrap
 # A slot: the frame, then what held when it was accepted: the flags right after it, the halt epoch

@@ -6,17 +6,12 @@ supervision (`supervise.py`) and packs the reply caches the IRQ serves. Its writ
 reads are wrapped in `critical` sections, except the float caches: one 32-bit store each (store_q).
 """
 
-from ..micro import micropython
+from ..micro import const, micropython
 
 from ..motion.fixed import store_q
 from .irq import FTAB_DISABLED, FTAB_HALTS
 from ..spec.protocol import FLAG_BUSY, FLAG_NOTENABLED
 
-try:
-    from micropython import const
-except ImportError:
-    def const(value):
-        return value
 
 # What service() and _apply_next() use, as constants of this module: another module's name is a
 # global lookup on every use (~1.5 us on the chip). test_irq_path checks them against their sources.

@@ -15,15 +15,10 @@ tracking detector (tracking.py, the encoder no longer following the field);
 `set_stall_detector()` switches at run time (bench, tests).
 """
 
-from ..micro import micropython
+from ..micro import const, micropython
 from ..motion.fixed import muldiv
 from ..spec.protocol import FLAG_BUSY, FLAG_NOTENABLED, FLAG_NOTHOMED, FLAG_STALL
 
-try:
-    from micropython import const
-except ImportError:
-    def const(value):
-        return value
 
 ORIGINAL = const(0)
 TRACKING = const(1)

@@ -9,12 +9,7 @@ from ..motion.fixed import ANGLE_Q, RPM_Q, muldiv, store_q
 from ..detect.homing import HOMED, OUTCOMES, RUNNING
 from ..spec.protocol import FLAG_BUSY, FLAG_NOTHOMED, FLAG_STALL, HOMINGTRAVEL
 from ..detect.tracking import wrapped_diff
-
-try:
-    from micropython import const
-except ImportError:
-    def const(value):
-        return value
+from ..micro import const
 
 _HOMING_SETTLE_MS = const(500)
 _REST_MS = const(100)

@@ -15,12 +15,7 @@ Integer arithmetic on preallocated state (the `TrackingDetector` inside).
 """
 
 from .tracking import TrackingDetector, wrapped_diff
-
-try:
-    from micropython import const
-except ImportError:
-    def const(value):
-        return value
+from ..micro import const
 
 RUNNING = const(0)
 HOMED = const(1)

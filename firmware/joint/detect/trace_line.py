@@ -9,14 +9,9 @@ nothing: even a str or a memoryview slice per line cost 100-300 us in the runnin
 
 from array import array
 
-from ..micro import micropython, ptr8
+from ..micro import const, micropython, ptr8
 from .stall import speed_q18
 
-try:
-    from micropython import const
-except ImportError:
-    def const(value):
-        return value
 
 # Per column: Q bits and decimals (raw, despiked, filtered, speed, set_speed, threshold, stall).
 _COLUMNS = b"\x00\x02\x00\x02\x04\x02\x12\x03\x12\x03\x04\x02\x00\x00"

@@ -27,13 +27,7 @@ the Q8 history is re-based before it could leave 32 bits, and a jump no motor ma
 
 from array import array
 
-from ..micro import micropython
-
-try:
-    from micropython import const
-except ImportError:
-    def const(value):
-        return value
+from ..micro import const, micropython
 
 _WRAP = const(0x3FFFFFFF)
 _HALF = const(0x20000000)

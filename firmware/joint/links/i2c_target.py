@@ -24,16 +24,11 @@ is kept here (`core.judge` judges a command; `core.on_frame` is the same for oth
 
 from array import array
 
-from ..micro import micropython, ptr8, ptr32
+from ..micro import const, micropython, ptr32, ptr8
 
 from ..core.irq import FTAB_WLEN, REGISTER_SPACE
 from ..spec.protocol import FLAG_ERROR, MAX_FRAME, PING
 
-try:
-    from micropython import const
-except ImportError:
-    def const(value):
-        return value
 
 IRQ_ADDR_MATCH_READ = const(1)
 IRQ_ADDR_MATCH_WRITE = const(2)

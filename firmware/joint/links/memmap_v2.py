@@ -32,12 +32,7 @@ from ..motion.fixed import f32_to_q
 from .i2c_target import IRQ_END_WRITE
 from ..core.irq import COUNTER_MASK  # counters wrap before they would become long ints
 from ..spec.regtable import NOT_A_COMMAND
-
-try:
-    from micropython import const
-except ImportError:
-    def const(value):
-        return value
+from ..micro import const
 
 _EMPTY_CMD = const(0xFF)  # no register 0xFF: a mailbox the host has not written since the swap
 _EMPTY_SEQ = const(0x80)  # bit 7 set: never a sequence number the host sends

@@ -12,13 +12,7 @@ struct.pack("<f", n / 2**q).
 
 import struct
 
-from ..micro import micropython, ptr8, ptr32
-
-try:
-    from micropython import const
-except ImportError:
-    def const(value):
-        return value
+from ..micro import const, micropython, ptr32, ptr8
 
 ANGLE_Q = const(12)
 RPM_Q = const(16)
@@ -113,3 +107,15 @@ def to_q(value, q):
     """round(value * 2**q) of a Python number (configuration time only: may allocate)."""
     scaled = value * (1 << q)
     return int(scaled + 0.5) if scaled >= 0 else -int(-scaled + 0.5)
+
+
+def state_word(i):
+    """A property over word i of the instance's int32 state array `s`: viper code works on the
+    array, Python code off the 1 kHz path uses the names (the ramp's, the encoder's, the step
+    generator's state)."""
+    def get(self):
+        return self.s[i]
+
+    def put(self, value):
+        self.s[i] = value
+    return property(get, put)

@@ -6,13 +6,8 @@ constants are defined here and re-exported by joint.sim.ramp.
 
 from array import array
 
-from ..micro import micropython, ptr32, state_word
-
-try:
-    from micropython import const
-except ImportError:
-    def const(x):
-        return x
+from ..micro import const, micropython, ptr32
+from .fixed import state_word
 
 POSITIONING = const(0)
 VELOCITY_POS = const(1)

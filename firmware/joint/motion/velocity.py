@@ -15,13 +15,7 @@ sampling rate.
 
 from array import array
 
-from ..micro import micropython, ptr32
-
-try:
-    from micropython import const
-except ImportError:
-    def const(x):
-        return x
+from ..micro import const, micropython, ptr32
 
 
 class VelocityEstimator:

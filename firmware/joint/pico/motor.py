@@ -24,13 +24,7 @@ Default wiring (motor_config.DEFAULT_PINS; the joint bus target is I2C0 on GP4 S
     TMC2209 MS1/MS2 set the UART node address (tmc_address); SPREAD tied low.
 """
 
-from ..micro import micropython, ptr32
-
-try:
-    from micropython import const
-except ImportError:
-    def const(x):
-        return x
+from ..micro import const, micropython, ptr32
 
 from ..motion.fixed import muldiv
 from ..motion.hal import MotorHAL

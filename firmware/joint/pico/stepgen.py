@@ -31,13 +31,8 @@ Speed changes take effect at the next tick: one loop period of latency.
 
 from array import array
 
-from ..micro import micropython, ptr32, state_word
-
-try:
-    from micropython import const
-except ImportError:
-    def const(x):
-        return x
+from ..micro import const, micropython, ptr32
+from ..motion.fixed import state_word
 
 SM_FREQ = const(12500000)
 HIGH_CYCLES = const(3)  # STEP high time: the pulse instruction plus its 2-cycle delay

@@ -18,17 +18,12 @@ import struct
 import sys
 
 try:
-    from micropython import const
-except ImportError:
-    def const(value):
-        return value
-
-try:
     from binascii import crc32
 except ImportError:
     from zlib import crc32
 
 from .protocol_v2 import spec_bytes as _v2_spec_bytes
+from ..micro import const
 
 # Register docs are for people (the host's shell and docs); the board does not keep them (heap).
 _KEEP_DOCS = sys.implementation.name != "micropython"

@@ -36,11 +36,7 @@ if it is new: 1..63 ahead of `ack` (7-bit arithmetic). The same frame again (a r
 changing the verdict; anything else behind or equal is a sequence error.
 """
 
-try:
-    from micropython import const
-except ImportError:
-    def const(value):
-        return value
+from ..micro import const
 
 PROTOCOL_LEGACY = const(1)
 PROTOCOL_V2 = const(2)

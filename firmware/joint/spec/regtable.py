@@ -8,12 +8,7 @@ the joint needs after boot out of the spec once, so that the board forgets proto
 """
 
 import struct
-
-try:
-    from micropython import const
-except ImportError:
-    def const(value):
-        return value
+from ..micro import const
 
 NOT_A_COMMAND = const(0xFF)  # command_size(): the register may not travel in the v2 mailbox
 
