@@ -27,6 +27,7 @@ import pytest
 
 from bioscara import cli, flash, mpboard
 from bioscara.config import load_config
+from bioscara.errors import ConfigError
 from bioscara.firmware.spec.protocol import PROTOCOL_VERSION, SPEC_HASH
 from bioscara.firmware.spec.version import FIRMWARE_VERSION
 from bioscara.hardware import open_arm_bus
@@ -99,14 +100,11 @@ def unix_port_info() -> mpboard.BoardInfo:
 
 # ---- what goes onto the board ----
 
-def test_the_joint_package_is_deployed_precompiled_without_sim_configs_or_tests():
+def test_the_joint_package_is_deployed_precompiled_exactly_as_the_pico_manifest_says():
     board = FakeBoard()
     plan = flashed(board)
     package = sorted(p for p in board.files if p.startswith("/joint/"))
-    expected = sorted("/joint/" + str(p.relative_to(ROOT / "firmware" / "joint").with_suffix(".mpy"))
-                      for p in (ROOT / "firmware" / "joint").rglob("*.py")
-                      if not {"sim", "configs", "tests", "__pycache__"} & set(p.parts) and p.name != "board_main.py")
-    assert package == expected
+    assert package == sorted("/joint/" + name[:-3] + ".mpy" for name in flash.board_files("pico"))
     assert "/joint/__init__.mpy" in package and "/joint/pico/motor.mpy" in package
     assert plan.image.compiled and "armv6m" in plan.image.build
     native = set()
@@ -119,6 +117,40 @@ def test_the_joint_package_is_deployed_precompiled_without_sim_configs_or_tests(
     assert "/joint/pico/motor.mpy" in native and "/joint/app.mpy" not in native
     assert set(board.files) == set(package) | {"/main.py", "/joint_config.json"}
     assert board.log[-3:] == [("import", "joint.app"), ("write", "/main.py"), ("reset", "")]
+
+
+def _imports(name: str, source: bytes) -> set[str]:
+    """The firmware files `name` (a path in the joint package) imports relatively, resolved."""
+    import ast
+
+    package = name.split("/")[:-1]
+    found = set()
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.ImportFrom) and node.level:
+            base = package[:len(package) - node.level + 1] + (node.module.split(".") if node.module else [])
+            targets = ([base] if node.module else []) + [base + [alias.name] for alias in node.names]
+            for target in targets:
+                stem = "/".join(target)
+                found.update(f for f in (stem + ".py", stem + "/__init__.py") if (ROOT / "firmware" / "joint" / f).is_file())
+    return found
+
+
+@pytest.mark.parametrize("board", flash.boards())
+def test_a_board_manifest_is_closed_under_import_and_holds_no_simulator_code(board):
+    files = set(flash.board_files(board))
+    assert not {f for f in files if f.startswith(("sim/", "boards/", "tests/"))}
+    for name in files:
+        source = (ROOT / "firmware" / "joint" / name).read_bytes()
+        missing = _imports(name, source) - files
+        assert not missing, f"{board}: {name} imports {sorted(missing)}, which the manifest leaves out"
+    if board == "pico":
+        assert "links/cp_target.py" not in files  # CircuitPython's link
+        assert {"app.py", "pico/motor.py", "links/memmap_v2.py", "core/controller.py"} <= files
+
+
+def test_an_unknown_board_manifest_is_a_clear_error():
+    with pytest.raises(ConfigError, match="no board manifest 'nano'; boards: pico"):
+        flash.board_files("nano")
 
 
 def test_main_py_is_the_firmware_entry_point_as_source():
@@ -134,7 +166,7 @@ def test_the_chosen_joint_config_becomes_joint_config_json(joint):
     shipped = (ROOT / "firmware" / "joint" / "config" / f"{joint}.json").read_bytes()
     assert board.files["/joint_config.json"] == shipped
     assert plan.image.address == json.loads(shipped)["address"]
-    assert not any("J1.json" in p or "configs" in p for p in board.files)
+    assert not any(p.endswith(".json") and p != "/joint_config.json" for p in board.files)
 
 
 def test_the_firmware_leaves_ctrl_c_working_so_the_board_stays_flashable():
