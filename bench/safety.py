@@ -50,6 +50,7 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT / "firmware")]
 
 from joint.config import schema as joint_config  # noqa: E402
+from joint.core.supervise import DETECTOR_NAMES as DETECTORS  # noqa: E402
 from joint.spec import protocol as P  # noqa: E402
 from joint.sim import mechanics as M  # noqa: E402
 from joint.sim.bus import SimJointBus, default_costs  # noqa: E402
@@ -57,7 +58,6 @@ from joint.sim.clock import VirtualClock  # noqa: E402
 from joint.sim.joint import SimJoint  # noqa: E402
 from joint.sim.stepper import SimStepper  # noqa: E402
 
-DETECTORS = ("original", "tracking")
 JOINTS = ("J1", "J2", "J3", "J4")
 # Shipped configuration (host/bioscara/data/default.toml), motor side: reduction magnitude,
 # current %, stall threshold, max acceleration (joint units/s^2), max velocity, homing

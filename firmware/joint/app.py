@@ -14,12 +14,6 @@ from .spec.protocol_v2 import MEM_ADDRSIZE
 from .config.settings import CONFIG_FILE
 from .links.memmap_v2 import ProtocolSwitch
 
-# RP2040 DW_apb_i2c IC_STATUS of I2C0/I2C1 and its SLV_ACTIVITY bit: set while a transaction
-# addressed to the target is in progress. The v2 swap waits for it to clear.
-_RP2040_IC_STATUS = (0x40044070, 0x40048070)
-_SLV_ACTIVITY = 0x40
-# The I2C0/I2C1 blocks: the legacy adapter sets the RX FIFO threshold and the RX_DONE mask there.
-_RP2040_I2C = (0x40044000, 0x40048000)
 _SLOW_EVERY_MASK = 3  # the console and the legacy protocol switch: every 4th main-loop iteration
 
 
@@ -82,10 +76,12 @@ def bus_activity_probe(machine, bus):
     activity bit; elsewhere none (always false: a torn state block is then caught by its CRC)."""
     mem32 = getattr(machine, "mem32", None)
     if _on_rp2040(machine):
-        status = _RP2040_IC_STATUS[bus]
+        from .pico import IC_STATUS, SLV_ACTIVITY, i2c_registers
+
+        status = i2c_registers(bus) + IC_STATUS
 
         def active():
-            return mem32[status] & _SLV_ACTIVITY
+            return mem32[status] & SLV_ACTIVITY
         return active
 
     def never():
@@ -108,7 +104,11 @@ def join_bus(machine, core, cfg, log):
         return machine.I2CTarget(i2c.bus, cfg.address, mem=mem, mem_addrsize=MEM_ADDRSIZE, **pins)
 
     probe = bus_activity_probe(machine, i2c.bus)
-    block = _RP2040_I2C[i2c.bus] if _on_rp2040(machine) else 0
+    # The legacy adapter sets the RX FIFO threshold and the RX_DONE mask in the target's I2C block.
+    block = 0
+    if _on_rp2040(machine):
+        from .pico import i2c_registers
+        block = i2c_registers(i2c.bus)
 
     def legacy_adapter(target):
         return I2CTargetAdapter(core, target, i2c.whole_reply_writes, probe, block)

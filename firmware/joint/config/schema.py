@@ -8,12 +8,12 @@ Used at boot only on the board (the objects it builds are settings.py's).
 
 import json
 
+from ..core.supervise import DETECTOR_NAMES
 from .settings import CONFIG_FILE, JOINTS, JointConfig, Section
 
 ADDRESSES = {"J1": 0x11, "J2": 0x12, "J3": 0x13, "J4": 0x14}
 BACKENDS = ("pico", "sim")
 SAFE_ACTIONS = ("hold", "freewheel")
-DETECTORS = ("original", "tracking")
 
 _INT = 0
 _NUM = 1
@@ -30,7 +30,7 @@ SCHEMA = (
         # or "freewheel" (currents 0, coils open).
         ("safe_action", _STR, "hold", SAFE_ACTIONS, None),
         # Deadman stops decelerate at this rate (full steps/s^2): the fastest the motor can brake
-        # the joint's inertia without losing position (tools/derive_safety_constants.py).
+        # the joint's inertia without losing position (bench/derive_safety.py, make derive-safety).
         ("stop_deceleration", _NUM, 11636.0, 1.0, 11636.0),
     )),
     ("i2c", (
@@ -57,7 +57,7 @@ SCHEMA = (
         ("slope", _NUM, 0.0, -100000.0, 100000.0),  # usteps per rad/s
         # "original": the filtered-PID-error detector above; "tracking": tracking.py, the encoder
         # no longer following the driver's field. Constants from bench/derive_safety.py.
-        ("detector", _STR, "original", DETECTORS, None),
+        ("detector", _STR, "original", DETECTOR_NAMES, None),
         ("track_base", _INT, 320, 16, 100000),  # usteps of lag beyond any free-running lag
         ("track_tau_ms", _INT, 10, 0, 1000),  # plus this many ms of field travel at the speed,
         ("track_cap", _INT, 100000, 0, 1000000),  # at most this many usteps

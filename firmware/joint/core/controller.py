@@ -18,7 +18,8 @@ from .loop import MainLoop
 from .supervise import Supervisor
 from .tasks import Tasks
 
-__all__ = ("COUNTER_MASK", "JointController")
+__all__ = ("COUNTER_MASK", "JointController", "NO_CRITICAL")
+
 
 def _no_irq_off():
     return 0
@@ -26,6 +27,10 @@ def _no_irq_off():
 
 def _no_irq_on(state):
     pass
+
+
+# The (disable, enable) pair where nothing is shared with an interrupt (v2, the simulator).
+NO_CRITICAL = (_no_irq_off, _no_irq_on)
 
 
 class JointController(IrqPath, MainLoop, Handlers, Tasks, Supervisor):
@@ -39,7 +44,7 @@ class JointController(IrqPath, MainLoop, Handlers, Tasks, Supervisor):
         """The (disable, enable) interrupt pair guarding state shared with the IRQ path; None:
         nothing to guard (protocol v2: no Python IRQ, and the I2C interrupt must never be held
         off while a transaction is in progress, see ProtocolSwitch)."""
-        self._irq_off, self._irq_on = critical or (_no_irq_off, _no_irq_on)
+        self._irq_off, self._irq_on = critical or NO_CRITICAL
 
     def _select_protocol(self, q, off):
         self.protocol_request = q[off]

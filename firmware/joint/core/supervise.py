@@ -47,7 +47,7 @@ class Supervisor:
         homing found."""
         return self.hal.angle_moved() + self.zero_offset
 
-    # ---- IRQ path: no allocation ----
+    # ---- main loop, every iteration: no allocation ----
 
     def _check_stall(self):
         """The original detector, every stall.sample_time."""

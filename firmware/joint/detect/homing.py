@@ -28,12 +28,6 @@ _USTEPS_PER_DEG_Q8 = const(36409)  # 51200/360 usteps per degree, x 256
 _MARGIN_MS = const(3000)
 
 
-def noise_floor(control_threshold, floor_per_rpm, speed_rpm):
-    """The |PID error| a freely moving motor reaches at `speed_rpm` (usteps, int): the closed loop
-    lets it grow to the control threshold, plus one ISR tick of travel."""
-    return int(control_threshold + floor_per_rpm * speed_rpm)
-
-
 class HomingMonitor:
     def __init__(self, homing_cfg, stall_cfg):
         self.sample_ms = stall_cfg.track_sample_ms

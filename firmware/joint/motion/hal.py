@@ -23,7 +23,6 @@ allocate on the board. A backend that models in floats converts at its boundary
 FULL_STEPS_PER_REV = 200
 MICROSTEPS = 256
 USTEPS_PER_REV = FULL_STEPS_PER_REV * MICROSTEPS
-USTEPS_PER_DEG = USTEPS_PER_REV / 360.0
 
 
 class MotorHAL:

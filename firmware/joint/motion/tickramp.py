@@ -73,14 +73,14 @@ class TickRamp:
                 and s[S_XF] == 0)
 
     def tick(self):
-        _run(self.s, 1)
+        run_ramp(self.s, 1)
 
     def run(self, n):
-        _run(self.s, n)
+        run_ramp(self.s, n)
 
 
 @micropython.viper
-def _run(s: ptr32, n: int):
+def run_ramp(s: ptr32, n: int):
     """`n` ticks of the ramp whose state is `s`. Words are read through ((w + m) & k) - m, which
     sign-extends a 32-bit word on a 64-bit port (viper loads it zero-extended) and is the identity
     on the 32-bit chip and under CPython."""

@@ -76,13 +76,13 @@ class FixedVelocityEstimator:
         s[4] = s[5] = s[6] = 0
 
     def update(self, count):
-        return _update(self.s, count)
+        return update_velocity(self.s, count)
 
 
 @micropython.viper
-def _update(s: ptr32, count: int) -> int:
+def update_velocity(s: ptr32, count: int) -> int:
     """One estimator step over the state `s` (see FixedVelocityEstimator); words are read
-    sign-extended as in ramp._run."""
+    sign-extended as in tickramp.run_ramp."""
     m = 1
     m <<= 31
     k = m + m - 1

@@ -28,12 +28,12 @@ from ..micro import const, micropython, ptr32
 
 from ..motion.fixed import muldiv
 from ..motion.hal import MotorHAL
-from ..motion.tickramp import POSITIONING, VELOCITY_NEG, _run as _ramp_run
-from ..motion.velocity import _update as _velocity_update
+from ..motion.tickramp import POSITIONING, VELOCITY_NEG, run_ramp
+from ..motion.velocity import update_velocity
 from . import tmc2209 as tmc
 from .as5600 import decode_status
 from .as5600 import next_sample as _enc_next
-from .stepgen import _issue as _steps_issue, _poll as _steps_poll
+from .stepgen import issue_steps, poll_steps
 
 
 _FS_Q4_CAP = 20000 * 16  # full steps/s(^2) in Q4 beyond every limit below: keeps products small
@@ -56,7 +56,7 @@ def _resync(es: ptr32, ss: ptr32, rs: ptr32, threshold: int) -> int:
     """The closed loop's tick: the PID error (usteps, the driver position when the encoder was
     read minus the encoder's), and when |error| >= threshold the driver frame shifted onto the
     encoder (_relabel(-error): step generator, ramp, and the queued read's tag). Words are read
-    sign-extended as in tickramp._run."""
+    sign-extended as in tickramp.run_ramp."""
     m = 1
     m <<= 31
     k = m + m - 1
@@ -92,14 +92,6 @@ def _velocity_mode(rs: ptr32, rpm: int, den: int, limit: int):
             v = limit
     rs[_RS_VMAX] = v
     rs[_RS_MODE] = _VELOCITY_POS if rpm > 0 else _VELOCITY_NEG
-
-
-def i2c_registers(index):
-    """Address of the DW_apb_i2c block behind machine.I2C(index) (RP2040 or RP2350 datasheet)."""
-    import sys
-
-    base = 0x40090000 if "RP2350" in sys.implementation._machine else 0x40044000
-    return base + index * (0x8000 if base == 0x40090000 else 0x4000)
 
 
 class PicoStepper(MotorHAL):
@@ -154,20 +146,20 @@ class PicoStepper(MotorHAL):
             self._last_us = now
         else:
             self._last_us += ticks * tick_us
-        _steps_poll(ss, sm, pio)
+        poll_steps(ss, sm, pio)
         # The encoder read queued at the last update, tagged with the driver and field positions
         # of that instant (as5600.py); a blocking read when none is queued.
         got = _enc_next(es, enc_regs, enc_buf, ss[0], ss[3])
         if got < 0:
             got = self._enc.sample(ss[0], ss[3])
         if got:
-            _velocity_update(vs, es[_ES_COUNT])
+            update_velocity(vs, es[_ES_COUNT])
             if self._closed_loop:
                 self._error = _resync(es, ss, rs, self._threshold)
-        _ramp_run(rs, ticks)
+        run_ramp(rs, ticks)
         if self._stopping and rs[_RS_V] == 0:
             self._finish_stop()
-        _steps_issue(ss, sm, pio, rs[_RS_X], ticks * tick_us)
+        issue_steps(ss, sm, pio, rs[_RS_X], ticks * tick_us)
 
     def _relabel(self, delta):
         """Shift the driver frame by `delta` usteps without moving the motor (an XACTUAL write):

@@ -145,8 +145,7 @@ _STEALTH_MAX = 2000.0  # usteps/s: the library's TPWMTHRS=5000 at 10 MHz
 
 def build_stepper(cls, motor_cfg, clock):
     """PicoStepper.from_config: the real objects from a motor config dict (DEFAULTS fill the gaps)."""
-    from .motor import i2c_registers
-
+    from . import i2c_registers
 
     problems = validate_motor_config(motor_cfg)
     if problems:

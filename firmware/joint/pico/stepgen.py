@@ -159,13 +159,13 @@ class StepGenerator:
 
     def poll(self):
         """Account for bursts the PIO has finished."""
-        _poll(self.s, self._sm, self.pio)
+        poll_steps(self.s, self._sm, self.pio)
 
     def issue(self, target, dt_us):
         """Queue one burst toward `target` (int usteps, the ramp position) spread over BURST_FILL
         of `dt_us` microseconds; returns the pulses queued (0 when there is nothing whole to send
         or the FIFO is busy). Integers only: it runs at 1 kHz on the board."""
-        return _issue(self.s, self._sm, self.pio, target, dt_us)
+        return issue_steps(self.s, self._sm, self.pio, target, dt_us)
 
     def shift(self, delta):
         """Relabel both positions by `delta` usteps (closed-loop re-sync, set home)."""
@@ -177,7 +177,7 @@ class StepGenerator:
         return self.s[2] == 0
 
 
-# The viper functions read the state's words sign-extended, as joint.motion.tickramp._run explains.
+# The viper functions read the state's words sign-extended, as joint.motion.tickramp.run_ramp explains.
 # PIO registers as 32-bit word indices (RP2040 datasheet 3.7): FSTAT (RXEMPTY bits 8..11), TXF0..3,
 # RXF0..3.
 _FSTAT = const(1)
@@ -187,7 +187,7 @@ _RXEMPTY = const(8)
 
 
 @micropython.viper
-def _poll(s: ptr32, sm, pio: int):
+def poll_steps(s: ptr32, sm, pio: int):
     m = 1
     m <<= 31
     k = m + m - 1
@@ -217,7 +217,7 @@ def _poll(s: ptr32, sm, pio: int):
 
 
 @micropython.viper
-def _issue(s: ptr32, sm, pio: int, target: int, dt_us: int) -> int:
+def issue_steps(s: ptr32, sm, pio: int, target: int, dt_us: int) -> int:
     m = 1
     m <<= 31
     k = m + m - 1
