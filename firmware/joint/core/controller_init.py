@@ -1,5 +1,21 @@
 """JointController's construction, boot only (app.BOOT_ONLY): the board forgets this code once the
-joint is built; the controller keeps only the state it made."""
+joint is built; the controller keeps only the state it made.
+
+Who owns which state. Every attribute below is created here (`init`, `irq_init.init`); after boot
+each is written only by the context it is listed under (tests/test_firmware_state_owners.py reads
+the code of each context and checks it against these tables):
+
+    IRQ          irq.py: on_frame, reply_into, host_seen (never allocates)
+    MAIN_LOOP    loop.py, handlers.py: draining the queue, applying commands, the reply caches
+    SUPERVISION  supervise.py: stall detection, the deadman
+    TASKS        tasks.py: the blocking tasks (boot, HOME, CHECKORIENTATION)
+    MAIN_SHARED  written by more than one of the main loop's parts (one thread: no guard needed)
+    IRQ_SHARED   what the IRQ context and the main loop share: written by one, read by the other
+                 (or, for `flags` and `halts`, written by both inside the critical section)
+
+Everything else `init` sets (hal, clock, cfg, log, the configuration's constants, the frame
+table's bytes of `irq_init`) is written once here and only read after.
+"""
 
 import struct
 
@@ -17,6 +33,18 @@ from ..detect.stall import StallDetector
 from .supervise import DETECTOR_NAMES
 from ..detect.tracking import TrackingDetector
 from ..spec.version import FIRMWARE_VERSION
+
+IRQ = ("_q_in", "_blocking_in", "_blocking_stops", "_reply_wire", "_reply_err", "transactions",
+       "host_us", "rejects", "stops", "stall_rearms")
+MAIN_LOOP = ("_q_out", "_blocking_out", "_cache_turn", "_ftab", "_logged_rejects", "_motion_allowed",
+             "_stops_seen", "disabled", "ready", "closed_loop", "drive_current", "hold_current",
+             "max_acceleration", "max_deceleration", "q_set", "stall", "stallguard", "watchdog_ms")
+SUPERVISION = ("detector",)
+TASKS = ("_task_stops", "_task_wake", "inverted", "zero_offset")
+MAIN_SHARED = ("flags", "halts", "positioning", "qd_set", "_task", "task_name", "_safe_pending",
+               "_next_sample_ms", "_next_stall_ms", "_next_track_ms")
+IRQ_SHARED = ("flags", "halts", "_q_in", "_q_out", "_blocking_out", "_task", "_task_stops", "host_us",
+              "rejects", "stall_rearms", "stops", "transactions")
 
 
 def init(core, hal, clock, cfg, log, critical):
