@@ -21,7 +21,7 @@ from joint.pico.stepgen import StepGenerator, burst_pulses
 from joint.pico.tmc2209 import TMC2209
 from joint.sim.clock import VirtualClock
 from joint.sim.i2c_target import FakeI2CTarget
-from test_pico_backend import FakeTMCBus
+from pico_fakes import FakeTMCBus
 
 MICROPYTHON = sys.implementation.name == "micropython"
 _RING = 8

@@ -42,7 +42,7 @@ _MAX_DT_TICKS = const(4)  # a late update advances the ramp by at most this many
 
 # Words of the state arrays _resync and the 1 kHz methods work on, as constants here (viper
 # needs them; elsewhere each saves a global lookup): the encoder's (as5600.S_COUNT, S_AT, S_NEXT)
-# and the ramp's position and speed (tickramp.S_X, S_V); test_pico_backend checks.
+# and the ramp's position and speed (tickramp.S_X, S_V); test_pico_motor checks.
 _ES_COUNT = const(1)
 _ES_AT = const(4)
 _ES_NEXT = const(6)
