@@ -10,8 +10,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from bioscara import cli, errors
-from bioscara.firmware import protocol as P
-from bioscara.firmware import protocol_v2 as V
+from bioscara.firmware.spec import protocol as P
+from bioscara.firmware.spec import protocol_v2 as V
 
 HOST = Path(errors.__file__).resolve().parent
 _EXIT = {"ConfigError": cli.USAGE, "InvalidArgumentError": cli.USAGE}

@@ -25,8 +25,8 @@ from matplotlib.patches import FancyBboxPatch, Rectangle  # noqa: E402
 from bioscara import cli, motion, report  # noqa: E402
 from bioscara.communicator import Communicator  # noqa: E402
 from bioscara.config import load_config  # noqa: E402
-from bioscara.firmware import protocol as P  # noqa: E402
-from bioscara.firmware import protocol_v2 as V  # noqa: E402
+from bioscara.firmware.spec import protocol as P  # noqa: E402
+from bioscara.firmware.spec import protocol_v2 as V  # noqa: E402
 from bioscara.hardware import open_arm  # noqa: E402
 from bioscara.recording import TraceWriter  # noqa: E402
 
@@ -161,13 +161,11 @@ ARCHITECTURE = {
         ("Bus: smbus2, blinka, serial bridge, sim", ["host/bioscara/bus"]),
     ],
     "joint": [  # bottom-aligned with the host's: the spec beside the host's links, the IRQ path on the bus
-        ("motor HAL: Pico backend or simulated uStepper", ["firmware/joint/hal.py", "firmware/joint/pico",
-                                                                      "firmware/joint/sim"]),
-        ("main loop: commands, HOME, stall, deadman, replies",
-         ["firmware/joint/loop.py", "firmware/joint/tasks.py", "firmware/joint/supervise.py"]),
-        ("protocol spec: the same files as the host's", ["firmware/joint/protocol.py", "firmware/joint/protocol_v2.py"]),
-        ("IRQ path and v2 link: bytes in, cached reply out",
-         ["firmware/joint/irq.py", "firmware/joint/i2c_target.py", "firmware/joint/v2.py"]),
+        ("motor HAL: Pico backend or simulated uStepper", ["firmware/joint/motion", "firmware/joint/pico",
+                                                           "firmware/joint/sim"]),
+        ("main loop: commands, HOME, stall, deadman, replies", ["firmware/joint/core", "firmware/joint/detect"]),
+        ("protocol spec: the same files as the host's", ["firmware/joint/spec"]),
+        ("IRQ path and v2 link: bytes in, cached reply out", ["firmware/joint/links", "firmware/joint/core/irq.py"]),
     ],
 }
 

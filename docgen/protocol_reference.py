@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from bioscara.firmware import protocol as P
-from bioscara.firmware import protocol_v2 as V
+from bioscara.firmware.spec import protocol as P
+from bioscara.firmware.spec import protocol_v2 as V
 
 _KINDS = {P.U8: "u8", P.I32: "i32", P.F32: "f32", P.U16: "u16", P.U32: "u32", P.CHAR: "char"}
 

@@ -15,8 +15,8 @@ from types import SimpleNamespace
 import pytest
 
 from bioscara import cli, errors
-from bioscara.firmware import protocol as P
-from bioscara.firmware import protocol_v2 as V
+from bioscara.firmware.spec import protocol as P
+from bioscara.firmware.spec import protocol_v2 as V
 from docgen import cli_reference
 from tests.doc_blocks import COMMAND_TIMEOUT_S, Block, blocks, run_session, steps, unmarked
 
