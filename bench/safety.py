@@ -57,6 +57,8 @@ from joint.sim.clock import VirtualClock  # noqa: E402
 from joint.sim.joint import SimJoint  # noqa: E402
 from joint.sim.stepper import SimStepper  # noqa: E402
 
+import sim_reference  # noqa: E402 -- bench/, beside this file
+
 DETECTORS = ("original", "tracking")
 JOINTS = ("J1", "J2", "J3", "J4")
 # Shipped configuration (host/bioscara/data/default.toml), motor side: reduction magnitude,
@@ -575,6 +577,8 @@ def main(argv: list[str]) -> int:
     results = run_all(scenarios, processes=min(2, os.cpu_count() or 1))
     for name, value in figures(results, avail):
         print(name, _fmt(value), flush=True)
+    # The simulator these figures rest on, against an independent solution of its equations.
+    print("safety.sim_reference_error_pct", _fmt(sim_reference.error_pct()), flush=True)
     print(f"# {len(scenarios)} scenarios in {time.perf_counter() - t0:.0f} s; detectors: {', '.join(avail)}",
           file=sys.stderr)
     if verbose:

@@ -276,7 +276,7 @@ def test_sim_payload_and_noise_shape_the_simulated_arm(tmp_path: Path) -> None:
     path = edited(tmp_path, "payload_kg = 0.0", "payload_kg = 1.0")
     heavy, bare = open_arm_bus(resolve_config(str(path))), open_arm_bus(resolve_config())  # in-process simulators
     # J2 carries the payload's weight through its screw: more torque on the motor (sign: down).
-    assert heavy.joint(0x12).stepper._gravity < bare.joint(0x12).stepper._gravity < 0.0
+    assert heavy.joint(0x12).stepper._load_torque_nm < bare.joint(0x12).stepper._load_torque_nm < 0.0
     path = edited(tmp_path, 'noise = "nominal"', 'noise = "loud"')
     assert only_problem(path) == f'{path}: sim.noise = "loud" must be one of "nominal", "harsh"'
 
