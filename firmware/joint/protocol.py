@@ -283,6 +283,9 @@ _DEG = "deg (motor)"
 _DEG_S = "deg/s (motor)"
 _DEG_S2 = "deg/s^2 (motor)"
 _LIMIT = 1e6
+# Motor angles travel as Q12 degrees (fixed.py): |angle| < 2^18 degrees, about half of it kept for the
+# homing offset added to an absolute target. A move beyond is refused (ERROR), never clamped.
+_ANGLE_LIMIT = 131071.0
 _ZERO_ONLY = Field("reserved", U8, "", 0, 0)
 
 
@@ -353,9 +356,9 @@ REGISTERS = (
              doc="extension: ramp-generator speed (the original answered with flags only)"),
     Register(MOVESTEPS, "MOVESTEPS", write=(Field("steps", I32, "microsteps (1/256 step)"),),
              doc="relative move in the stepper library's step unit"),
-    Register(MOVEANGLE, "MOVEANGLE", write=_f32("angle", _DEG),
+    Register(MOVEANGLE, "MOVEANGLE", write=_f32("angle", _DEG, 0.0, _ANGLE_LIMIT),
              doc="extension: relative move"),
-    Register(MOVETOANGLE, "MOVETOANGLE", write=_f32("angle", _DEG),
+    Register(MOVETOANGLE, "MOVETOANGLE", write=_f32("angle", _DEG, 0.0, _ANGLE_LIMIT),
              doc="absolute move in the encoder frame; ignored while stalled or not enabled"),
     _unsupported(GETMOTORSTATE, "GETMOTORSTATE"),
     _unsupported(RUNCOTINOUS, "RUNCOTINOUS"),
