@@ -337,6 +337,7 @@ LASTERROR = const(0x31)
 PROTOCOL = const(0x32)
 HOMINGTRAVEL = const(0x33)
 WATCHDOG = const(0x34)
+HOMINGRESULT = const(0x35)
 WATCHDOG_MAX_MS = const(5000)
 
 BRAKE_FREEWHEEL = const(0)
@@ -420,6 +421,19 @@ REGISTERS = (
                  "homing, orientation check); 0 (boot): the original's, velocity only"),
     Register(HOMINGTRAVEL, "HOMINGTRAVEL", read=_f32("travel", _DEG),
              doc="extension: encoder travel of the last successful homing, start to end stop"),
+    Register(HOMINGRESULT, "HOMINGRESULT", read=(Field("outcome", U8),),
+             doc="extension: how the last HOME ended, an index of HOMING_OUTCOMES"),
+)
+
+# How a HOME ends (HOMINGRESULT; the joint's console says the same).
+HOMING_OUTCOMES = (
+    "running",
+    "homed",
+    "travel limit reached without finding the end stop",
+    "timeout without finding the end stop",
+    "end stop found, but the sensitivity was not reached within the push time: lower it",
+    "encoder too noisy at rest (weak or missing magnet): homing refused",
+    "the joint did not come to rest before homing (a link falling under its load): homing refused",
 )
 
 BY_ADDR = [None] * 256
