@@ -103,10 +103,10 @@ class Rig:
         self.clock = VirtualClock()
         # noise: "nominal" | "harsh" (TLE5012B) | "as5600" (the Pico backend's 12-bit encoder)
         encoder = "as5600" if noise == "as5600" else "tle5012b"
-        kwargs = M.stepper_kwargs(joint, payload_kg, "nominal" if noise == "as5600" else noise, encoder)
-        if weak_magnet:  # ustepper-model.md 8.3: sigma x 20, harmonic error up to 20-40 deg
-            kwargs.update(enc_sigma=20 * kwargs["enc_sigma"], enc_harmonics=(20.0, 10.0))
-        self.stepper = SimStepper(self.clock, seed=seed, **kwargs)
+        self.stepper = SimStepper(self.clock, seed=seed, **M.stepper_kwargs(
+            joint, payload_kg, "nominal" if noise == "as5600" else noise, encoder))
+        if weak_magnet:
+            self.stepper.weaken_magnet()
         self.stepper.set_end_stops(low_deg, high_deg)
         # The shipped per-joint config (its stall and homing constants), on the simulated motor.
         cfg = joint_config.load(str(ROOT / "firmware" / "joint" / "configs" / f"{joint}.json"))

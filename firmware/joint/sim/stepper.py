@@ -42,6 +42,9 @@ Simulator hooks (not part of MotorHAL):
     set_load_torque(nm)            external torque on the load (on top of the constant load_torque);
                                    positive pushes toward negative angles
     driver_position()              XACTUAL, usteps
+    weaken_magnet(noise_factor=20, harmonics_deg=(20.0, 10.0))
+                                   the fault mode of ustepper-model.md 8.3: encoder noise x factor and
+                                   a large harmonic error (a weak or displaced magnet)
 Walls belong on the side the load is not on: one placed behind it pushes it out like a
 compressed spring. A collision of the arm seen through the joint reduction N is far softer than
 the same contact on the motor shaft (joint stiffness / N^2); mechanics.py has the arm's values.
@@ -651,6 +654,12 @@ class SimStepper(MotorHAL):
         if abs(v) < 1.0:
             v = self._field_dir * self._ramp.v
         self._add(x, -1 if v < 0.0 else 1, stiffness, damping)
+
+    def weaken_magnet(self, noise_factor=20.0, harmonics_deg=(20.0, 10.0)):
+        cpd = self._counts_per_rev / 360.0
+        self._noise_counts *= noise_factor
+        self._harmonic1_counts = harmonics_deg[0] * cpd
+        self._harmonic2_counts = harmonics_deg[1] * cpd
 
     def set_load_torque(self, nm):
         self._external_torque_nm = nm
