@@ -49,8 +49,9 @@ from typing import Iterable
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT / "firmware")]
 
-from joint import config as joint_config  # noqa: E402
-from joint import protocol as P  # noqa: E402
+from joint.config import schema as joint_config  # noqa: E402
+from joint.core.supervise import DETECTOR_NAMES as DETECTORS  # noqa: E402
+from joint.spec import protocol as P  # noqa: E402
 from joint.sim import mechanics as M  # noqa: E402
 from joint.sim.bus import SimJointBus, default_costs  # noqa: E402
 from joint.sim.clock import VirtualClock  # noqa: E402
@@ -60,7 +61,6 @@ from joint.sim.stepper import SimStepper  # noqa: E402
 import contact_bounds  # noqa: E402 -- bench/, beside this file
 import sim_reference  # noqa: E402
 
-DETECTORS = ("original", "tracking")
 JOINTS = ("J1", "J2", "J3", "J4")
 # Shipped configuration (host/bioscara/data/default.toml), motor side: reduction magnitude,
 # current %, stall threshold, max acceleration (joint units/s^2), max velocity, homing
@@ -109,7 +109,7 @@ class Rig:
             self.stepper.weaken_magnet()
         self.stepper.set_end_stops(low_deg, high_deg)
         # The shipped per-joint config (its stall and homing constants), on the simulated motor.
-        cfg = joint_config.load(str(ROOT / "firmware" / "joint" / "configs" / f"{joint}.json"))
+        cfg = joint_config.load(str(ROOT / "firmware" / "joint" / "config" / f"{joint}.json"))
         assert cfg.valid, cfg.errors
         cfg.motor = {"backend": "sim"}
         if detector != "original" and not self._config_detector(cfg, detector):
@@ -481,8 +481,8 @@ def homing(s: Homing) -> dict:
 
 
 def _homing_travel_deg(joint: str) -> float:
-    """The joint's configured homing travel limit, motor degrees (firmware/joint/configs)."""
-    cfg = joint_config.load(str(ROOT / "firmware" / "joint" / "configs" / f"{joint}.json"))
+    """The joint's configured homing travel limit, motor degrees (firmware/joint/config)."""
+    cfg = joint_config.load(str(ROOT / "firmware" / "joint" / "config" / f"{joint}.json"))
     return cfg.homing.max_travel_deg
 
 

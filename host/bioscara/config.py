@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from .errors import ConfigError
-from .firmware import protocol as P
+from .firmware.spec import protocol as P
 from .transmission import Transmission
 
 JointType = Literal["revolute", "prismatic"]
