@@ -5,6 +5,8 @@ A task holds BUSY while it runs; the main loop steps it when its wait is over (e
 how many milliseconds to wait) or a STOP cancelled it.
 """
 
+import struct
+
 from ..motion.fixed import ANGLE_Q, RPM_Q, muldiv, store_q
 from ..detect.homing import HOMED, RUNNING
 from ..spec.protocol import FLAG_BUSY, FLAG_NOTHOMED, FLAG_STALL, HOMING_OUTCOMES, HOMINGRESULT, HOMINGTRAVEL
@@ -134,7 +136,7 @@ class Tasks:
         hal.stop(True)
         # The settle doubles as the magnet check, in its second half (the first lets a link that
         # fell while the coils were off be caught): the encoder's jumps while the motor holds.
-        self._cache[HOMINGRESULT][0] = RUNNING
+        struct.pack_into("<B", self._cache[HOMINGRESULT], 0, RUNNING)  # a reply cache, as handlers.py writes them
         clock = self.clock
         yield _HOMING_SETTLE_MS // 2
         start = clock.ticks_ms()
@@ -179,7 +181,7 @@ class Tasks:
             self._set_flags(FLAG_NOTHOMED)
             self.log.warn("homing ended, not homed: %s" % ("aborted by STOP" if outcome == RUNNING
                                                           else HOMING_OUTCOMES[outcome]))
-        self._cache[HOMINGRESULT][0] = outcome
+        struct.pack_into("<B", self._cache[HOMINGRESULT], 0, outcome)
         hal.set_current(self.drive_current)
         hal.set_hold_current(self.hold_current)
         self.track.reset()
