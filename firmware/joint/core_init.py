@@ -44,9 +44,6 @@ def init(core, hal, clock, cfg, log, critical):
                                   st.track_sample_ms, st.track_cap, st.track_slope_q8)
     core.detector = DETECTOR_NAMES.index(st.detector) if st.detector in DETECTOR_NAMES else 0
     core.homing = HomingMonitor(cfg.homing, st)
-    # HOME sensitivity noise floor, integer for the IRQ: threshold + speed * per_rpm (Q10).
-    core._homing_floor = int(cfg.boot.control_threshold)
-    core._homing_floor_q = int(cfg.homing.floor_per_rpm * 1024 + 0.5)
     # Deadman: 0 = the original's (velocity only, cfg.deadman_ms); WATCHDOG sets every mode.
     core.watchdog_ms = 0
     core._deadman_ms = cfg.deadman_ms
@@ -67,17 +64,17 @@ def init(core, hal, clock, cfg, log, critical):
         if size:
             core._cache[addr] = bytearray(size)
     core._cache[PING][0] = ACK
-    core._cache_values = [0, 0, 0, 0]  # what the float caches hold (HAL units)
+    # What the float caches hold, in HAL units: the angle (Q12, from home), the encoder speed and the
+    # driver speed (rpm Q16), the PID error (usteps); v2.py packs the first two into its state block.
+    core.reply_values = [0, 0, 0, 0]
     core._cache_turn = 0  # counts iterations: which of the slower caches is refreshed next
     struct.pack_into("<BBBBBI", core._cache[IDENTITY], 0, PROTOCOL_VERSION, FIRMWARE_VERSION[0],
                      FIRMWARE_VERSION[1], FIRMWARE_VERSION[2], cfg.joint_id, SPEC_HASH)
-    # IRQ-side state: the reply the next read gets, the command queue, counters.
-    init_irq(core)
+    # IRQ-side state: the reply the next read gets, the command queue, counters; the frame table
+    # holds HOME's sensitivity noise floor, integer: threshold + speed * per_rpm (Q10).
+    init_irq(core, int(cfg.boot.control_threshold), int(cfg.homing.floor_per_rpm * 1024 + 0.5))
     core._q_in = 0  # written by the IRQ path only
     core._q_out = 0  # written by the main loop only
-    core._blocking_in = 0  # blocking commands accepted (IRQ) ...
-    core._blocking_out = 0  # ... and taken from the queue (main loop)
-    core._blocking_stops = 0  # stop epoch when the latest blocking command was accepted
     core.transactions = 0
     core._ticks_us = clock.ticks_us  # bound once: the IRQ path calls it
     core.host_us = clock.ticks_us()
@@ -90,17 +87,15 @@ def init(core, hal, clock, cfg, log, critical):
     core.stall_rearms = 0
     core._stops_seen = 0
     core._motion_allowed = False
-    core.rejects = 0
-    core._logged_rejects = 0
+    core._logged_rejects = 0  # the rejection count's low byte when the main loop last logged one
     # Main-loop bookkeeping.
     now = clock.ticks_ms()
     core._next_stall_ms = now
     core._stall_period_ms = int(cfg.stall.sample_time * 1000 + 0.5)
     core._next_track_ms = now
     core._next_sample_ms = now  # the earlier of the two
-    core._task = None
+    core._task = None  # its stop epoch is in the frame table (the IRQ reads it)
     core.task_name = None
-    core._task_stops = 0  # the stop epoch the running task belongs to
     core._task_wake = now
     core._handlers = {
         SETUP: core._setup, SETRPM: core._set_rpm, MOVESTEPS: core._move_steps,
@@ -122,7 +117,7 @@ def init(core, hal, clock, cfg, log, critical):
         core.flags = FLAGS_AT_BOOT
         core.ready = True
     else:
-        core._start_task("boot", _boot(core))
+        core._start_task("boot", _boot(core), core.stops)
 
 
 def _boot(core):

@@ -9,7 +9,7 @@ reads are wrapped in `critical` sections, except the float caches: one 32-bit st
 from .emitters import micropython
 
 from .fixed import store_q
-from .irq import FTAB_DISABLED, FTAB_HALTS
+from .irq import FTAB_DISABLED, FTAB_HALTS, FTAB_TASK
 from .protocol import FLAG_BUSY, FLAG_NOTENABLED
 
 try:
@@ -34,6 +34,8 @@ _SLOT_HALTS = const(6)
 _SLOT_STOPS = const(7)
 _MOTION_BLOCKED = const(9)
 _COUNTER_MASK = const(0x1FFFFFFF)
+_FTAB_BLOCK_OUT = const(1540)
+_FTAB_REJECTS = const(1550)
 
 
 class MainLoop:
@@ -84,7 +86,7 @@ class MainLoop:
                 # The reply caches, each packed only when its value changed. Work split by rate:
                 # the angle every iteration, the encoder speed every second one, the driver speed
                 # and the PID error every fourth (at most 2 and 4 ms old).
-                last = self._cache_values
+                last = self.reply_values
                 value = hal.angle_moved() + self.zero_offset  # _host_angle(), inlined
                 if value != last[0]:
                     last[0] = value
@@ -110,8 +112,8 @@ class MainLoop:
                     store_q(self._cache[addr], value, q)
             except Exception as exc:
                 self._motor_fault(exc)
-        if self.rejects != self._logged_rejects:
-            self._logged_rejects = self.rejects
+        if self._ftab[_FTAB_REJECTS] != self._logged_rejects:  # (one byte: wraps at 256, not between two passes)
+            self._logged_rejects = self._ftab[_FTAB_REJECTS]
             cache = self._cache[_LASTERROR]
             self.log.warn("rejected a frame for register 0x%02x: %s"
                           % (cache[1], self.registers.reject_string(cache[0])))
@@ -121,6 +123,7 @@ class MainLoop:
         self.disabled = True
         self._ftab[FTAB_DISABLED] = 1  # what the IRQ's judge reads
         self._task = None
+        self._ftab[FTAB_TASK] = 0
         self.task_name = None
         state = self._irq_off()
         self.flags = (self.flags | FLAG_NOTENABLED) & ~FLAG_BUSY
@@ -168,7 +171,8 @@ class MainLoop:
                 self._handlers[addr](queue, base + 1)
             else:
                 self.log.info("%s cancelled by STOP before it started" % self.registers.name(addr))
-            self._blocking_out = (self._blocking_out + 1) & _COUNTER_MASK
+            ftab = self._ftab
+            ftab[_FTAB_BLOCK_OUT] = (ftab[_FTAB_BLOCK_OUT] + 1) & 0xFF
         else:
             self._handlers[addr](queue, base + 1)
         self._q_out = (q_out + 1) & _COUNTER_MASK

@@ -7,6 +7,7 @@ how many milliseconds to wait) or a STOP cancelled it.
 
 from .fixed import ANGLE_Q, RPM_Q, muldiv, store_q
 from .homing import HOMED, OUTCOMES, RUNNING
+from .irq import FTAB_TASK, FTAB_TASK_STOPS
 from .protocol import FLAG_BUSY, FLAG_NOTHOMED, FLAG_STALL, HOMINGTRAVEL
 from .tracking import wrapped_diff
 
@@ -35,14 +36,18 @@ def _usteps_to_angle(usteps):
 class Tasks:
     """JointController's blocking commands (mixed into it): generators yielding milliseconds to wait."""
 
-    def _start_task(self, name, task):
-        self._task_stops = self.stops  # before _task: the IRQ reads both
+    def _start_task(self, name, task, stops):
+        """Run `task` for the command accepted in stop epoch `stops` (its queue slot's: a STOP
+        that came after the command cancels the task, even one that came while it was applied)."""
+        ftab = self._ftab
+        ftab[FTAB_TASK_STOPS] = stops  # before FTAB_TASK: the IRQ reads both
+        ftab[FTAB_TASK] = 1
         self.task_name = name
         self._task_wake = self.clock.ticks_ms()
         self._task = task
 
     def _cancelled(self):
-        return self._task_stops != self.stops
+        return self._ftab[FTAB_TASK_STOPS] != self.stops
 
     def _step_task(self, now):
         try:
@@ -58,6 +63,7 @@ class Tasks:
         if not self._cancelled():
             self.flags &= ~FLAG_BUSY
         self._task = None
+        self._ftab[FTAB_TASK] = 0
         self._irq_on(state)
         self.task_name = None
 

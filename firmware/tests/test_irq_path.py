@@ -227,6 +227,28 @@ def test_a_second_blocking_command_is_rejected_while_one_runs():
     assert sum(1 for c in rig.motor.calls if c[0] == "set_rpm" and c[1] == 10) == 1
 
 
+def test_a_stop_while_a_blocking_command_is_applied_cancels_it():
+    """The main loop takes a HOME from the queue and starts its task; a STOP accepted in between
+    (on the chip the cancelled task before it winds down for milliseconds: driver writes, a log
+    line) cancels the new task, which belongs to the stop epoch its command was accepted in, and
+    the next HOME is accepted."""
+    rig = Rig()
+    rig.command("SETUP", 20, 20, 0, 0)
+    rig.command("HOME", 1, 10, 30, 15)
+    rig.run_ms(600)
+    rig.command("STOP", 0)
+    assert not rig.command("HOME", 1, 10, 30, 15) & P.FLAG_ERROR
+    wind_down = rig.core._finish_cancelled_task
+
+    def stop_meanwhile():
+        wind_down()
+        assert not rig.command("STOP", 0) & P.FLAG_ERROR
+    rig.core._finish_cancelled_task = stop_meanwhile
+    rig.run_ms(1)
+    assert rig.core.task_name == "HOME" and rig.core._cancelled(), "started, and cancelled by the STOP"
+    assert not rig.command("HOME", 1, 10, 30, 15) & P.FLAG_ERROR, "no blocking command is live"
+
+
 def _boundary_payloads(reg):
     """Payloads of `reg` at and just past every field's limits, non-finite floats, wrong lengths."""
     per_field = []
@@ -260,10 +282,10 @@ def test_the_irq_frame_checks_give_the_spec_verdict_for_every_register():
         for payload in _boundary_payloads(reg) if reg is not None else (b"\x00",):
             if not payload and reg.readable:
                 continue  # a register selected for reading
-            before = rig.core.rejects
+            before = rig.core.reject_count()
             flags = rig.xfer(bytes([addr]) + payload, 1)[0]
             expected = P.REJECT_UNKNOWN_REGISTER if reg is None else reg.check_write(payload, 0, len(payload))
-            reason = rig.core.cached_reply(P.LASTERROR)[0] if rig.core.rejects != before else P.REJECT_NONE
+            reason = rig.core.cached_reply(P.LASTERROR)[0] if rig.core.reject_count() != before else P.REJECT_NONE
             if expected != P.REJECT_NONE:
                 assert reason == expected and flags & P.FLAG_ERROR, (addr, payload, reason, expected)
             else:
@@ -296,7 +318,16 @@ def test_the_irq_code_reads_the_spec_and_the_frame_table_where_they_are():
     assert (irq._DISABLED, irq.FTAB_DISABLED, irq._STOPS, irq._HALTS, irq.FTAB_HALTS, irq._MOTION, irq._HOMING) == (
         T.DISABLED, T.DISABLED, T.STOPS, T.HALTS, T.HALTS, T.MOTION, T.HOMING)
     assert (irq._CHECK_BYTES, irq._CHECK_F32, irq._CHECK_U16) == (T.CHECK_BYTES, T.CHECK_F32, T.CHECK_U16)
-    assert T.SIZE == T.HALTS + 1 and T.REGISTERS * 4 <= T.HI - T.LO and T.LIMITS + T.REGISTERS * 8 <= T.DISABLED
+    assert (irq._BLOCK_IN, irq._BLOCK_OUT, irq.FTAB_BLOCK_OUT, irq._BLOCK_STOPS, irq._TASK, irq.FTAB_TASK,
+            irq._TASK_STOPS, irq.FTAB_TASK_STOPS, irq._HOMING_FLOOR, irq._HOMING_FLOOR_Q) == (
+        T.BLOCK_IN, T.BLOCK_OUT, T.BLOCK_OUT, T.BLOCK_STOPS, T.TASK, T.TASK, T.TASK_STOPS, T.TASK_STOPS,
+        T.HOMING_FLOOR, T.HOMING_FLOOR_Q)
+    assert (irq._LAST_REASON, irq._LAST_REGISTER, irq._REJECTS, irq.FTAB_REJECTS) == (
+        T.LASTERROR_WIRE, T.LASTERROR_WIRE + 1, T.LASTERROR_WIRE + 2, T.LASTERROR_WIRE + 2)
+    assert T.BLOCK_IN == T.HALTS + 1 and T.HOMING_FLOOR == T.TASK_STOPS + 1
+    assert T.HOMING_FLOOR_Q == T.HOMING_FLOOR + 2 and T.LASTERROR_WIRE == T.HOMING_FLOOR_Q + 2
+    assert T.SIZE == T.LASTERROR_WIRE + P.register("LASTERROR").rsize + 1
+    assert T.REGISTERS * 4 <= T.HI - T.LO and T.LIMITS + T.REGISTERS * 8 <= T.DISABLED
 
 
 class Rp2Events:
@@ -350,7 +381,7 @@ def test_a_command_the_rp2_driver_ends_early_is_kept_whole():
     setup = bytearray([P.SETUP]) + P.register("SETUP").encode(20, 20, 0, 0)
     rig.core.on_frame(setup, len(setup))
     rig.run_ms(1)
-    rejects = rig.core.rejects
+    rejects = rig.core.reject_count()
     payload = P.register("SETRPM").encode(12.5)
     target.fire(WQ, bytes([P.SETRPM]))
     target.fire(E_W)  # the late STOP of the transaction before
@@ -359,7 +390,7 @@ def test_a_command_the_rp2_driver_ends_early_is_kept_whole():
     target.fire(RQ)
     target.fire(RQ)
     target.fire(E_R)
-    assert rig.core.rejects == rejects and not target.sent[0] & P.FLAG_ERROR, target.sent
+    assert rig.core.reject_count() == rejects and not target.sent[0] & P.FLAG_ERROR, target.sent
     rig.run_ms(1)
     assert ("set_rpm", 12.5) in rig.motor.calls
 
@@ -375,9 +406,9 @@ def test_a_short_command_is_rejected_at_the_read_or_at_stop():
     target.fire(E_R)
     target.active = False
     target.fire(WQ, bytes([P.SETRPM]))
-    before = rig.core.rejects
+    before = rig.core.reject_count()
     target.fire(E_W)  # STOP, bus idle: judged at once
-    assert rig.core.rejects == before + 1
+    assert rig.core.reject_count() == before + 1
 
 
 def test_the_main_loop_reads_the_queue_and_the_spec_where_they_are():
@@ -392,4 +423,5 @@ def test_the_main_loop_reads_the_queue_and_the_spec_where_they_are():
     assert (loop._SLOT_MASK, loop._SLOT, loop._SLOT_FLAGS, loop._SLOT_HALTS, loop._SLOT_STOPS) == (
         irq.QUEUE_SLOTS - 1, irq.SLOT, irq.SLOT_FLAGS, irq.SLOT_HALTS, irq.SLOT_STOPS)
     assert (loop._MOTION_BLOCKED, loop._COUNTER_MASK) == (irq.MOTION_BLOCKED, irq.COUNTER_MASK)
+    assert (loop._FTAB_BLOCK_OUT, loop._FTAB_REJECTS) == (irq.FTAB_BLOCK_OUT, irq.FTAB_REJECTS)
     assert irq.QUEUE_SLOTS & (irq.QUEUE_SLOTS - 1) == 0, "the slot mask needs a power of two"
