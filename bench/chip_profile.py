@@ -162,7 +162,7 @@ MODULES = ["joint.emitters", "joint.fixed", "joint.protocol_v2", "joint.protocol
 # (no IRQ in the figures): mean microseconds per iteration of each part.
 PARTS = '''
 import gc, time, machine
-from joint import app, protocol as P
+from joint import app, irq, protocol as P
 from joint.debug import DebugConsole, UsbStdio
 from joint.fixed import store_q
 core, cfg, log = app.boot(machine)
@@ -192,7 +192,7 @@ for i in range(N):
     time.sleep_ms(1)
     now = core.clock.ticks_ms()
     t0 = t(); hal.update(); t1 = t()
-    while core._q_out != core._q_in:
+    while core._ftab[irq.FTAB_Q_OUT] != core._ftab[irq.FTAB_Q_IN]:
         core._apply_next()
     if core.positioning and hal.position_reached():
         core.positioning = False
@@ -220,7 +220,7 @@ print("driver_rpm", hal.driver_rpm(), "flags", core.flags)
 # Which service() calls allocate on the chip (the host cycling): bytes, and what the call did.
 ALLOC = '''
 import gc, time
-from joint import app, core, debug
+from joint import app, core, debug, irq
 from joint import protocol as P
 _service = core.JointController.service
 _SETUP = bytearray((P.SETUP, 30, 10, 0, 0))
@@ -234,13 +234,13 @@ def svc(self):
             self.on_frame(_SETUP, 5)
             st[0] = 1
         return _service(self)
-    q0 = self._q_out
+    q0 = self._ftab[irq.FTAB_Q_OUT]
     tr = self.transactions
     a0 = gc.mem_alloc()
     _service(self)
     a1 = gc.mem_alloc()
     if a1 != a0:
-        log.append((a1 - a0, self._q_out - q0, self.transactions - tr, self._cache_turn, self.task_name))
+        log.append((a1 - a0, self._ftab[irq.FTAB_Q_OUT] - q0, self.transactions - tr, self._cache_turn, self.task_name))
     st[1] += 1
     if st[1] >= 600:
         raise Done()

@@ -73,18 +73,15 @@ def init(core, hal, clock, cfg, log, critical):
     # IRQ-side state: the reply the next read gets, the command queue, counters; the frame table
     # holds HOME's sensitivity noise floor, integer: threshold + speed * per_rpm (Q10).
     init_irq(core, int(cfg.boot.control_threshold), int(cfg.homing.floor_per_rpm * 1024 + 0.5))
-    core._q_in = 0  # written by the IRQ path only
-    core._q_out = 0  # written by the main loop only
     core.transactions = 0
     core._ticks_us = clock.ticks_us  # bound once: the IRQ path calls it
     core.host_us = clock.ticks_us()
     # Epochs (8 bits). `stops`: STOP frames (IRQ); a task or queued blocking command from an
     # older epoch is cancelled. `halts`: whatever stopped the motor (STOP in the IRQ, stall or
-    # deadman in the main loop); queued motion from an older epoch is not applied.
-    # `stall_rearms`: frames that cleared STALL, so a stall decided before one is dropped.
+    # deadman in the main loop); queued motion from an older epoch is not applied. (The frame
+    # table counts the frames that cleared STALL, the queue, the blocking commands: irq_init.py.)
     core.stops = 0
     core.halts = 0
-    core.stall_rearms = 0
     core._stops_seen = 0
     core._motion_allowed = False
     core._logged_rejects = 0  # the rejection count's low byte when the main loop last logged one

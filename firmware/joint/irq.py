@@ -80,12 +80,18 @@ _HOMING_FLOOR_Q = const(1546)
 _LAST_REASON = const(1548)  # LASTERROR's wire buffer: reason, register, count (u16), flags
 _LAST_REGISTER = const(1549)
 _REJECTS = const(1550)
+_Q_IN = const(1553)
+_Q_OUT = const(1554)
+_REARMS = const(1555)
 FTAB_DISABLED = const(1536)  # for loop.py and tasks.py
 FTAB_HALTS = const(1538)
 FTAB_BLOCK_OUT = const(1540)
 FTAB_TASK = const(1542)
 FTAB_TASK_STOPS = const(1543)
 FTAB_REJECTS = const(1550)  # the rejection count's low byte
+FTAB_Q_IN = const(1553)
+FTAB_Q_OUT = const(1554)
+FTAB_REARMS = const(1555)
 _MOTION = const(1)
 _HOMING = const(2)
 _CHECK_BYTES = const(0)
@@ -102,7 +108,7 @@ def judge_for(core, ftab, queue_buf):
         its flag changes applied and queued, or rejected (recorded in LASTERROR). Returns the
         reject reason, REJECT_NONE if accepted. The legacy IRQ adapter calls it directly and keeps
         the reply selection itself; protocol v2 hands its verdict to the host. Everything it
-        reads but the flags and the queue counters is in the frame table: no method calls."""
+        reads but the flags is in the frame table: no method calls, one attribute lookup."""
         f = ptr8(frame)
         t = ptr8(ftab)
         addr = f[0]
@@ -149,7 +155,7 @@ def judge_for(core, ftab, queue_buf):
         # Then the joint's state.
         if reason == _R_NONE:
             flags = int(core.flags)
-            q_in = int(core._q_in)
+            q_in = t[_Q_IN]
             stops = t[_STOPS]
             if t[_DISABLED]:
                 reason = _R_DISABLED
@@ -158,7 +164,7 @@ def judge_for(core, ftab, queue_buf):
                     or (t[_TASK] and t[_TASK_STOPS] == stops)):
                 reason = _R_BUSY  # a blocking command queued or running, not cancelled by a STOP
             elif (addr != _HOMEOFFSET and addr != _STOP
-                  and ((q_in - int(core._q_out)) & COUNTER_MASK) >= QUEUE_SLOTS):
+                  and ((q_in - t[_Q_OUT]) & 0xFF) >= QUEUE_SLOTS):
                 reason = _R_QUEUE_FULL
             else:
                 # What the joint's state refuses: motion while stalled or not enabled (0 rpm
@@ -190,7 +196,7 @@ def judge_for(core, ftab, queue_buf):
         if flags != before:  # (a store costs an attribute lookup: most commands change nothing)
             core.flags = flags
         if clears & _FLAG_STALL:
-            core.stall_rearms = (int(core.stall_rearms) + 1) & 0xFF
+            t[_REARMS] = (t[_REARMS] + 1) & 0xFF
         if addr == _STOP:
             # Immediate, as in the original's ISR: cancels the running blocking command and any
             # motion still queued; the main loop commands 0 RPM next.
@@ -220,7 +226,7 @@ def judge_for(core, ftab, queue_buf):
             if t[_BLOCKS + addr]:
                 t[_BLOCK_STOPS] = stops
                 t[_BLOCK_IN] = (t[_BLOCK_IN] + 1) & 0xFF
-            core._q_in = (q_in + 1) & COUNTER_MASK
+            t[_Q_IN] = (q_in + 1) & 0xFF
         return _R_NONE
 
     return judge

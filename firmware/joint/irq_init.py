@@ -45,7 +45,13 @@ TASK_STOPS = 1543
 HOMING_FLOOR = 1544  # HOME's sensitivity noise floor: threshold + speed x per_rpm (Q10 / 1024),
 HOMING_FLOOR_Q = 1546  # both 16-bit little-endian (boot only)
 LASTERROR_WIRE = 1548  # LASTERROR's wire buffer (reason, register, count u16, flags): the judge records here
-SIZE = 1553
+# The command queue's counters (8 bits: slot = counter % QUEUE_SLOTS), commands accepted (IRQ) and
+# applied (main loop); REARMS counts the frames that cleared STALL (a stall decided before one
+# is dropped).
+Q_IN = 1553
+Q_OUT = 1554
+REARMS = 1555
+SIZE = 1556
 MOTION = 1  # refused while stalled or not enabled (SETRPM: unless 0 rpm)
 HOMING = 2  # refused at or below the homing sensitivity noise floor
 
@@ -124,7 +130,7 @@ def init(core, homing_floor, homing_floor_q):
         if not 0 <= value <= 0xFFFF:
             raise ValueError("homing noise floor %d outside the IRQ's 16 bits" % value)
         _put16(ftab, off, value)
-    if len(core._cache[LASTERROR]) != SIZE - 1 - LASTERROR_WIRE:
+    if LASTERROR_WIRE + len(core._cache[LASTERROR]) + 1 != Q_IN:
         raise ValueError("LASTERROR does not fit its place in the IRQ frame table")
     core._wires = [None] * REGISTERS
     for addr in range(len(core._cache)):

@@ -9,7 +9,7 @@ reads are wrapped in `critical` sections, except the float caches: one 32-bit st
 from .emitters import micropython
 
 from .fixed import store_q
-from .irq import FTAB_DISABLED, FTAB_HALTS, FTAB_TASK
+from .irq import FTAB_DISABLED, FTAB_HALTS, FTAB_REARMS, FTAB_TASK
 from .protocol import FLAG_BUSY, FLAG_NOTENABLED
 
 try:
@@ -33,9 +33,10 @@ _SLOT_FLAGS = const(5)
 _SLOT_HALTS = const(6)
 _SLOT_STOPS = const(7)
 _MOTION_BLOCKED = const(9)
-_COUNTER_MASK = const(0x1FFFFFFF)
 _FTAB_BLOCK_OUT = const(1540)
 _FTAB_REJECTS = const(1550)
+_FTAB_Q_IN = const(1553)
+_FTAB_Q_OUT = const(1554)
 
 
 class MainLoop:
@@ -52,7 +53,8 @@ class MainLoop:
         here and the rest is called only when it has something to do."""
         # The commands queued before this iteration: one the IRQ queues while it runs (the
         # host's traffic landing in it) waits for the next, so its cost and theirs do not add up.
-        q_in = self._q_in
+        ftab = self._ftab
+        q_in = ftab[_FTAB_Q_IN]
         clock = self.clock
         now = clock.ticks_ms()
         if not self.disabled:
@@ -65,7 +67,7 @@ class MainLoop:
                     self.qd_set = 0
                     self.positioning = False
                 applied = 0
-                while self._q_out != q_in:
+                while ftab[_FTAB_Q_OUT] != q_in:
                     self._apply_next()
                     applied = 1
                 if self._task is not None and (clock.ticks_diff(now, self._task_wake) >= 0
@@ -157,7 +159,8 @@ class MainLoop:
 
     @micropython.native
     def _apply_next(self):
-        q_out = self._q_out
+        ftab = self._ftab
+        q_out = ftab[_FTAB_Q_OUT]
         base = (q_out & _SLOT_MASK) * _SLOT
         queue = self._queue
         addr = queue[base]
@@ -171,11 +174,10 @@ class MainLoop:
                 self._handlers[addr](queue, base + 1)
             else:
                 self.log.info("%s cancelled by STOP before it started" % self.registers.name(addr))
-            ftab = self._ftab
             ftab[_FTAB_BLOCK_OUT] = (ftab[_FTAB_BLOCK_OUT] + 1) & 0xFF
         else:
             self._handlers[addr](queue, base + 1)
-        self._q_out = (q_out + 1) & _COUNTER_MASK
+        ftab[_FTAB_Q_OUT] = (q_out + 1) & 0xFF
 
     def _may_move(self):
         return self._motion_allowed
@@ -185,7 +187,7 @@ class MainLoop:
         cleared STALL: `rearms` changed) or spoke (`transactions` changed) since the decision.
         Returns whether it halted."""
         state = self._irq_off()
-        if (rearms >= 0 and rearms != self.stall_rearms
+        if (rearms >= 0 and rearms != self._ftab[FTAB_REARMS]
                 or transactions >= 0 and transactions != self.transactions):
             self._irq_on(state)
             return False
