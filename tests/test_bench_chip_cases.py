@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import chip_bus
 from harness import Rig
-from joint import protocol as P
+from joint.spec import protocol as P
 
 GAP_MS = round(chip_bus.GAP_US / 1000)
 

@@ -1,10 +1,10 @@
 """Protocol v2 on the joint: the memory map served by the mem-mode target, the switch between the
 two maps, every rejection path, whole-block reads, and an allocation-free main loop."""
 
-from joint import protocol as P, protocol_v2 as V
+from joint.spec import protocol as P, protocol_v2 as V
 from joint.sim.i2c_target import FakeI2CTarget, heap_lock, heap_unlock
-from joint.fixed import f32_to_q, rescale, store_q
-from joint.v2 import _mailbox_crc, _state_crc
+from joint.motion.fixed import f32_to_q, rescale, store_q
+from joint.links.memmap_v2 import _mailbox_crc, _state_crc
 
 from v2rig import V2Rig
 
