@@ -24,16 +24,22 @@ _SLOW_EVERY_MASK = 3  # the console and the legacy protocol switch: every 4th ma
 
 
 def build_motor(cfg):
-    if cfg.motor.get("backend") == "pico":
+    backend = cfg.motor.get("backend")
+    if backend == "pico":
         from .pico.motor import PicoStepper
         return PicoStepper.from_config(cfg.motor)
+    if backend == "s32":
+        from .s32.board import build_stepper
+        return build_stepper(cfg.motor)
     raise ValueError("motor backend %r cannot run on a board" % cfg.motor.get("backend"))
 
 
-def build(machine, config_path=CONFIG_FILE, clock=None, write=None):
-    """Load the configuration and create the controller; returns (core, cfg, log)."""
-    from . import config  # boot only (see _drop_boot_only)
-    cfg = config.load(config_path)
+def build(machine, config_path=CONFIG_FILE, clock=None, write=None, cfg=None):
+    """Load the configuration (unless `cfg` is given: a board without a filesystem) and create
+    the controller; returns (core, cfg, log)."""
+    if cfg is None:
+        from . import config  # boot only (see _drop_boot_only)
+        cfg = config.load(config_path)
     log = Logger(cfg.joint or "joint", write=write)
     motor = None
     if cfg.valid:
@@ -93,16 +99,17 @@ def bus_activity_probe(machine, bus):
     return never
 
 
-def join_bus(machine, core, cfg, log):
+def join_bus(machine, core, cfg, log, target_pins=True):
     """Become an I2C target once booted, as the original registered its handlers last. Serves the
-    legacy map; the returned ProtocolSwitch moves to v2 when the host asks (main loop)."""
+    legacy map; the returned ProtocolSwitch moves to v2 when the host asks (main loop).
+    `target_pins`: pass the configured pins (rp2); the stm32 port's buses have fixed pins."""
     if cfg.address is None:
         log.error("no valid I2C address configured: not joining the bus")
         return None
     i2c = cfg.i2c
 
     def make_target(mem):
-        pins = {"scl": machine.Pin(i2c.scl), "sda": machine.Pin(i2c.sda)}
+        pins = {"scl": machine.Pin(i2c.scl), "sda": machine.Pin(i2c.sda)} if target_pins else {}
         if mem is None:
             return machine.I2CTarget(i2c.bus, cfg.address, **pins)
         return machine.I2CTarget(i2c.bus, cfg.address, mem=mem, mem_addrsize=MEM_ADDRSIZE, **pins)
@@ -122,11 +129,11 @@ def join_bus(machine, core, cfg, log):
         return None
 
 
-def boot(machine, config_path=CONFIG_FILE):
+def boot(machine, config_path=CONFIG_FILE, cfg=None):
     """`build`, then the boot task run to its end (the original's setup()); returns (core, cfg, log)."""
     import time
 
-    core, cfg, log = build(machine, config_path)
+    core, cfg, log = build(machine, config_path, cfg=cfg)
     while not core.ready:
         core.service()
         time.sleep_ms(1)
@@ -134,12 +141,14 @@ def boot(machine, config_path=CONFIG_FILE):
     return core, cfg, log
 
 
-def run(config_path=CONFIG_FILE):
+def run(config_path=CONFIG_FILE, cfg=None, target_pins=True):
+    """The joint's life: boot, join the bus, the 1 kHz main loop. A board without a filesystem
+    passes its configuration as `cfg` and, with fixed bus pins, target_pins=False."""
     import machine
     import time
 
-    core, cfg, log = boot(machine, config_path)
-    switch = join_bus(machine, core, cfg, log)
+    core, cfg, log = boot(machine, config_path, cfg)
+    switch = join_bus(machine, core, cfg, log, target_pins)
     stdio = UsbStdio()
     log.set_writer(stdio.write)
     debug = DebugConsole(core, stdio.read, stdio.write)

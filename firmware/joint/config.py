@@ -11,7 +11,8 @@ import json
 from .settings import CONFIG_FILE, JOINTS, JointConfig, Section
 
 ADDRESSES = {"J1": 0x11, "J2": 0x12, "J3": 0x13, "J4": 0x14}
-BACKENDS = ("pico", "sim")
+BACKENDS = ("pico", "s32", "sim")
+S32_JOINT_BUS = 1  # the uStepper S32's joint bus is I2C1 (PB8 SCL, PB9 SDA), pins fixed
 SAFE_ACTIONS = ("hold", "freewheel")
 DETECTORS = ("original", "tracking")
 
@@ -179,6 +180,13 @@ def _parse_motor(cfg, motor):
                                   % (cfg.source, key, pin, role, bus.bus))
         for problem in validate_motor_config(motor, {"bus": bus.bus, "sda": bus.sda, "scl": bus.scl}):
             cfg.errors.append("%s: motor: %s" % (cfg.source, problem))
+    elif backend == "s32":
+        if cfg.i2c.bus != S32_JOINT_BUS:
+            cfg.errors.append("%s: i2c.bus = %d: the uStepper S32's joint bus is I2C%d (PB8/PB9)"
+                              % (cfg.source, cfg.i2c.bus, S32_JOINT_BUS))
+        for key in motor:
+            if key != "backend":
+                cfg.errors.append("%s: unknown key motor.%s (the s32 backend has no settings)" % (cfg.source, key))
     cfg.motor = motor
 
 
@@ -189,17 +197,23 @@ def load(path=CONFIG_FILE):
             raw = f.read()
     except OSError as exc:
         return _unusable(path, "cannot read the file (%s)" % (exc,))
+    return parse_bytes(raw, path)
+
+
+def parse_bytes(raw, source):
+    """Decode and validate a configuration's bytes (a file's, or flash's on a board without a
+    filesystem); never raises."""
     try:
         text = raw.decode("utf-8")
     except UnicodeError:  # MicroPython raises UnicodeError, CPython its subclass
-        return _unusable(path, "not UTF-8 text")
+        return _unusable(source, "not UTF-8 text")
     try:
         data = json.loads(text)
     except ValueError as exc:
-        return _unusable(path, "not valid JSON (%s)" % (exc,))
+        return _unusable(source, "not valid JSON (%s)" % (exc,))
     except (RuntimeError, MemoryError):  # nesting deeper than the parser's recursion (or RAM) allows
-        return _unusable(path, "not valid JSON (nested too deeply)")
-    return parse(data, path)
+        return _unusable(source, "not valid JSON (nested too deeply)")
+    return parse(data, source)
 
 
 def _unusable(path, why):
