@@ -166,10 +166,8 @@ class FakeTLE5012B:
         safety = 0x7000 & ~self.fault
         buf[0] = data >> 8
         buf[1] = data & 0xFF
-        crc = 0xFF
-        for byte in (command >> 8, command & 0xFF, buf[0], buf[1]):
-            crc = self._crc[crc ^ byte]
-        crc ^= 0xFF
+        table = self._crc
+        crc = table[table[table[table[0xFF ^ (command >> 8)] ^ (command & 0xFF)] ^ buf[0]] ^ buf[1]] ^ 0xFF
         if self.corrupt_crc:
             crc ^= 0x01
         buf[2] = safety >> 8
@@ -203,7 +201,6 @@ class Rotor:
         self.wall = None  # usteps; the rotor cannot pass it in the direction of travel
         self.wall_side = 1
         self.position = 0
-        self._base = 0  # field - position while free (a set_home leaves both)
 
     def follow(self):
         f = self.tmc.field
@@ -212,13 +209,12 @@ class Rotor:
             return
         side = self.wall_side
         lead = (f - self.wall) * side
-        if lead <= 0:
-            self.position = f
-        elif lead <= 512:
-            self.position = self.wall
-        else:
+        if lead <= 512:
+            self.position = f if lead <= 0 else self.wall
+        else:  # the pole the field holds it at is past the wall: pressed there, or one behind
             slips = (lead - 512 + 1023) // 1024
-            self.position = f - side * 1024 * slips
+            behind = (f - side * 1024 * slips - self.wall) * side
+            self.position = self.wall if behind > 0 else f - side * 1024 * slips
 
 
 class Board:

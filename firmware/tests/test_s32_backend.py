@@ -93,7 +93,9 @@ def test_a_read_takes_two_datagrams_and_returns_the_second_reply():
     assert drv.read(tmc.XACTUAL) == -123456
     assert board.tmc.frames - before == 2
     board.tmc.v = -5000
-    assert drv.read_pair(tmc.XACTUAL, tmc.VACTUAL) == (-123456, (-5000) & 0xFFFFFF)
+    drv.frame(tmc.XACTUAL, 0)
+    assert drv.frame(tmc.VACTUAL, 0) == -123456, "each frame returns the previous request's register"
+    assert drv.frame(tmc.VACTUAL, 0) == (-5000) & 0xFFFFFF
     assert tmc.signed24((-5000) & 0xFFFFFF) == -5000
 
 
@@ -386,8 +388,10 @@ def test_a_blocked_joint_stalls():
     j = S32Joint()
     j.command("SETUP", 20, 20, 0, 0)
     j.command("ENABLESTALLGUARD", 2)
+    j.command("SETMAXACCELERATION", 3600.0)
     j.command("SETRPM", 60.0)
     j.tick(500)
+    assert abs(j.read("GETDRIVERRPM")[0][0] - 60.0) < 1.0
     j.board.rotor.wall = j.board.rotor.position + 100
     assert j.tick(3000, until=lambda: j.flags() & STALL)
     j.tick(300)

@@ -99,9 +99,10 @@ class S32Stepper(MotorHAL):
             self._raw = raw
             self._count += delta
             self._vel.update(self._count)
-        x, v = drv.read_pair(tmc.XACTUAL, tmc.VACTUAL)
+        drv.frame(tmc.XACTUAL, 0)  # each frame brings the previous request's register
+        x = drv.frame(tmc.VACTUAL, 0)
         self._x = x
-        self._v = tmc.signed24(v)
+        self._v = tmc.signed24(drv.frame(tmc.VACTUAL, 0))
         self._status = drv.status
         if self._closed_loop and raw >= 0:
             count = self._count
@@ -230,7 +231,7 @@ class S32Stepper(MotorHAL):
         current, the library's default brake current); the first two need IHOLD 0."""
         freewheel = 1 if mode == 0 else (2 if mode == 1 else 0)
         self._ihold = tmc.percent_to_cs(25) if mode == 2 else 0
-        self._drv.write(tmc.PWMCONF, tmc.PWMCONF_BASE | (freewheel << tmc._FREEWHEEL_SHIFT))
+        self._drv.write(tmc.PWMCONF, tmc.PWMCONF_BASE | (freewheel << tmc.FREEWHEEL_SHIFT))
         self._currents()
 
     def set_inverted(self, inverted):

@@ -64,7 +64,7 @@ SHAFT = const(0x10)
 CHOPCONF_BASE = const(0x00010042)
 # PWMCONF: PWM_AMPL 128, PWM_GRAD 1, PWM_FREQ 0, autoscale; FREEWHEEL in bits 21:20.
 PWMCONF_BASE = const(0x00040180)
-_FREEWHEEL_SHIFT = const(20)
+FREEWHEEL_SHIFT = const(20)
 
 VMAX_LIMIT = const(0x7FFE00)
 AMAX_LIMIT = const(0xFFFE)
@@ -89,8 +89,9 @@ class TMC5130:
         self.status = 0
         cs(1)
 
-    def _frame(self, addr, value):
-        """One datagram; returns the 32 bits it brought back as a signed 30-bit int."""
+    def frame(self, addr, value):
+        """One datagram; returns the 32 bits it brought back (the previous read request's
+        register) as a signed 30-bit int."""
         tx = self._tx
         rx = self.rx
         tx[0] = addr
@@ -106,17 +107,11 @@ class TMC5130:
         return x - _WRAP - 1 if x & _SIGN else x
 
     def write(self, reg, value):
-        self._frame(reg | WRITE, value)
+        self.frame(reg | WRITE, value)
 
     def read(self, reg):
-        self._frame(reg, 0)
-        return self._frame(reg, 0)
-
-    def read_pair(self, first, second):
-        """Two registers in three frames (each frame returns the previous request's value)."""
-        self._frame(first, 0)
-        a = self._frame(second, 0)
-        return a, self._frame(second, 0)
+        self.frame(reg, 0)
+        return self.frame(reg, 0)
 
     def check(self):
         """Raise TMCError unless IOIN reports a TMC5130 (a missing chip reads 0x00 or 0xFF)."""
