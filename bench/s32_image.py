@@ -1,0 +1,77 @@
+"""Flash and RAM figures of the uStepper S32 image (`make bench-s32`, after `make s32-image`).
+
+    python bench/s32_image.py build/s32
+
+Prints `name value` lines, from the built files (the ELF's symbols, arm-none-eabi-nm):
+
+    s32.flash_used_kb             firmware.bin, the frozen joint firmware included
+    s32.flash_free_kb             what is left of the 252 KB the linker gives the image (the last
+                                  4 KB of the 256 KB hold the joint's configuration)
+    s32.frozen_kb                 the frozen modules' share (the frozen_content object in the link map)
+    s32.static_ram_kb             .data + .bss
+    s32.gc_heap_kb                the GC heap's size (_heap_end - _heap_start)
+
+`s32.heap_free_after_boot_kb` needs the image booted (an emulated S32, issue 23 step 4): until
+then this script says it is not measured instead of printing a figure. Exit status 1 when the
+image is not there (with what is missing).
+"""
+
+from __future__ import annotations
+
+import pathlib
+import re
+import shutil
+import subprocess
+import sys
+
+FLASH_FOR_IMAGE = 252 * 1024  # firmware/boards/USTEPPER_S32/ustepper_s32.ld: FLASH
+TARGET_FLASH_FREE_KB = 4.0
+TARGET_HEAP_FREE_KB = 12.0
+
+
+def symbols(elf: pathlib.Path) -> dict[str, int]:
+    out = subprocess.run(["arm-none-eabi-nm", str(elf)], capture_output=True, text=True, check=True).stdout
+    found = {}
+    for line in out.splitlines():
+        parts = line.split()
+        if len(parts) == 3:
+            found[parts[2]] = int(parts[0], 16)
+    return found
+
+
+def frozen_bytes(map_file: pathlib.Path) -> int:
+    """Bytes the link map places from frozen_content.o (flash: code, rodata and initialised data)."""
+    total = 0
+    text = map_file.read_text(errors="replace")
+    for match in re.finditer(r"^ \.(?:text|rodata|data)\S*\s*(?:\n\s+)?0x[0-9a-f]+\s+0x([0-9a-f]+)\s+\S*frozen_content\.o",
+                             text, re.M):
+        total += int(match.group(1), 16)
+    return total
+
+
+def main(build: pathlib.Path) -> int:
+    binary, elf = build / "firmware.bin", build / "firmware.elf"
+    missing = [p for p in (binary, elf) if not p.exists()]
+    if missing:
+        print(f"no S32 image: {', '.join(map(str, missing))} missing (make s32-image builds it)", file=sys.stderr)
+        return 1
+    if shutil.which("arm-none-eabi-nm") is None:
+        print("arm-none-eabi-nm is missing (apt-get install binutils-arm-none-eabi)", file=sys.stderr)
+        return 1
+    sym = symbols(elf)
+    used = binary.stat().st_size
+    print(f"s32.flash_used_kb {used / 1024:.1f}")
+    print(f"s32.flash_free_kb {(FLASH_FOR_IMAGE - used) / 1024:.1f}")
+    map_file = build / "firmware.map"
+    if map_file.exists():
+        print(f"s32.frozen_kb {frozen_bytes(map_file) / 1024:.1f}")
+    print(f"s32.static_ram_kb {(sym['_ebss'] - sym['_ram_start']) / 1024:.1f}")
+    print(f"s32.gc_heap_kb {(sym['_heap_end'] - sym['_heap_start']) / 1024:.1f}")
+    print("s32.heap_free_after_boot_kb: not measured (needs the image booted on an emulated S32 or a board); "
+          f"the GC heap's size above is its upper bound; targets: flash free >= {TARGET_FLASH_FREE_KB:g} KB, "
+          f"heap free after boot >= {TARGET_HEAP_FREE_KB:g} KB", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(pathlib.Path(sys.argv[1] if len(sys.argv) > 1 else "build/s32")))
