@@ -7,7 +7,8 @@ Prints `name value` lines, from the built files (the ELF's symbols, arm-none-eab
     s32.flash_used_kb             firmware.bin, the frozen joint firmware included
     s32.flash_free_kb             what is left of the 252 KB the linker gives the image (the last
                                   4 KB of the 256 KB hold the joint's configuration)
-    s32.frozen_kb                 the frozen modules' share (the frozen_content object in the link map)
+    s32.frozen_kb                 the frozen modules' share: the symbols mpy-tool names (bytecode,
+                                  machine code, constants, their qstrs)
     s32.static_ram_kb             .data + .bss
     s32.gc_heap_kb                the GC heap's size (_heap_end - _heap_start)
 
@@ -39,14 +40,15 @@ def symbols(elf: pathlib.Path) -> dict[str, int]:
     return found
 
 
-def frozen_bytes(map_file: pathlib.Path) -> int:
-    """Bytes the link map places from frozen_content.o (flash: code, rodata and initialised data)."""
-    total = 0
-    text = map_file.read_text(errors="replace")
-    for match in re.finditer(r"^ \.(?:text|rodata|data)\S*\s*(?:\n\s+)?0x[0-9a-f]+\s+0x([0-9a-f]+)\s+\S*frozen_content\.o",
-                             text, re.M):
-        total += int(match.group(1), 16)
-    return total
+# Prefixes of what tools/mpy-tool.py emits for frozen modules (LTO hides the object file's share).
+FROZEN = re.compile(r"(fun_data_|proto_fun_|raw_code_|const_obj_|const_qstr_table_data_|const_table_data_|children_|"
+                    r"frozen_module_|mp_frozen_|mp_qstr_frozen_const_)")
+
+
+def frozen_bytes(elf: pathlib.Path) -> int:
+    out = subprocess.run(["arm-none-eabi-nm", "-S", str(elf)], capture_output=True, text=True, check=True).stdout
+    return sum(int(parts[1], 16) for parts in (line.split() for line in out.splitlines())
+               if len(parts) == 4 and FROZEN.match(parts[3]))
 
 
 def main(build: pathlib.Path) -> int:
@@ -62,9 +64,7 @@ def main(build: pathlib.Path) -> int:
     used = binary.stat().st_size
     print(f"s32.flash_used_kb {used / 1024:.1f}")
     print(f"s32.flash_free_kb {(FLASH_FOR_IMAGE - used) / 1024:.1f}")
-    map_file = build / "firmware.map"
-    if map_file.exists():
-        print(f"s32.frozen_kb {frozen_bytes(map_file) / 1024:.1f}")
+    print(f"s32.frozen_kb {frozen_bytes(elf) / 1024:.1f}")
     print(f"s32.static_ram_kb {(sym['_ebss'] - sym['_ram_start']) / 1024:.1f}")
     print(f"s32.gc_heap_kb {(sym['_heap_end'] - sym['_heap_start']) / 1024:.1f}")
     print("s32.heap_free_after_boot_kb: not measured (needs the image booted on an emulated S32 or a board); "
