@@ -7,7 +7,6 @@ the joint disabled, reporting why on the serial console, instead of crashing.
 
 from .clock import MonotonicClock
 from .core import JointController
-from .debug import DebugConsole, UsbStdio
 from .i2c_target import I2CTargetAdapter
 from .log import Logger
 from .protocol_v2 import MEM_ADDRSIZE
@@ -141,17 +140,24 @@ def boot(machine, config_path=CONFIG_FILE, cfg=None):
     return core, cfg, log
 
 
-def run(config_path=CONFIG_FILE, cfg=None, target_pins=True):
+def run(config_path=CONFIG_FILE, cfg=None, target_pins=True, console=True):
     """The joint's life: boot, join the bus, the 1 kHz main loop. A board without a filesystem
-    passes its configuration as `cfg` and, with fixed bus pins, target_pins=False."""
+    passes its configuration as `cfg` and, with fixed bus pins, target_pins=False; one without
+    room for the debug console, console=False (the log then prints to the REPL's serial port)."""
     import machine
     import time
 
     core, cfg, log = boot(machine, config_path, cfg)
     switch = join_bus(machine, core, cfg, log, target_pins)
-    stdio = UsbStdio()
-    log.set_writer(stdio.write)
-    debug = DebugConsole(core, stdio.read, stdio.write)
+    debug = None
+    if console:
+        from .debug import DebugConsole, UsbStdio
+        stdio = UsbStdio()
+        log.set_writer(stdio.write)
+        debug = DebugConsole(core, stdio.read, stdio.write)
+    import gc
+    gc.collect()
+    log.info("booted: %d bytes of heap free" % gc.mem_free())  # the RAM left for the console and v2
     next_us = time.ticks_us()
     turn = 0
     try:
@@ -162,7 +168,7 @@ def run(config_path=CONFIG_FILE, cfg=None, target_pins=True):
             # PROTOCOL request, which may wait a few milliseconds.
             if switch is not None and (turn == 0 or switch.link is not None):
                 switch.service()
-            if turn == 0:  # a person's console: every few milliseconds is quick enough
+            if turn == 0 and debug is not None:  # a person's console: every few milliseconds is quick enough
                 try:
                     debug.poll()
                 except Exception as exc:  # the console must never end the control loop

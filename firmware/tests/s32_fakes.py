@@ -49,7 +49,11 @@ class FakeTMC5130:
     def write_readinto(self, tx, rx):
         assert self.selected, "TMC5130 frame without chip select"
         assert len(tx) == 5 and len(rx) == 5, "TMC5130 datagrams are 40 bits"
-        self.frames += 1
+        self.reply(rx)
+        self.receive(tx[0], tx[1], tx[2], tx[3], tx[4])
+
+    def reply(self, rx):
+        """The five bytes the chip shifts out during a frame: SPI_STATUS and the pending read."""
         if not self.present:
             for i in range(5):
                 rx[i] = 0xFF
@@ -60,9 +64,12 @@ class FakeTMC5130:
         rx[2] = (value >> 16) & 0xFF
         rx[3] = (value >> 8) & 0xFF
         rx[4] = value & 0xFF
-        addr = tx[0]
+
+    def receive(self, addr, b1, b2, b3, b4):
+        """A complete frame the MCU sent: a write, or the register the next frame returns."""
+        self.frames += 1
         if addr & 0x80:
-            self._write(addr & 0x7F, _signed30(tx[1], tx[2], tx[3], tx[4]))
+            self._write(addr & 0x7F, _signed30(b1, b2, b3, b4))
             self._pending = 0
         else:
             self._pending = addr & 0x7F
@@ -160,7 +167,10 @@ class FakeTLE5012B:
         assert self.selected and len(buf) == 4
         if not self.released:
             self.contention += 1
-        command = self._command
+        self.answer(self._command, buf)
+
+    def answer(self, command, buf):
+        """Data word and safety word (with its CRC) for `command`, into buf[0:4]."""
         angle = self.raw()
         data = 0x8000 | angle if command == 0x8021 else 0
         safety = 0x7000 & ~self.fault

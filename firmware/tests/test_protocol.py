@@ -174,3 +174,10 @@ def test_spec_hash_changes_when_any_register_definition_changes():
         digest = P.spec_hash(table)
         assert digest not in seen, variant.name
         seen.add(digest)
+
+
+def test_the_bitwise_crc32_is_zlibs():
+    # The S32 image has no binascii.crc32: protocol.crc32_bitwise computes the spec hash there.
+    assert P.crc32_bitwise(b"123456789") == 0xCBF43926  # the CRC-32 check value
+    assert P.crc32_bitwise(b"") == 0
+    assert P.crc32_bitwise(P.spec_bytes()) == P.SPEC_HASH

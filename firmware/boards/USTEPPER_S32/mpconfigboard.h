@@ -6,28 +6,21 @@
 // Flash is the budget: the core feature level, plus what the joint firmware and the REPL use:
 // machine (I2CTarget, SPI, Pin, mem32), micropython (const, viper: the Thumb emitter stays on
 // because frozen viper/native code needs it), memoryview and buffer slice assignment (the IRQ
-// path and v2), json (the configuration), select and sys.stdin.buffer (the console), binascii's
-// crc32 (the protocol's spec hash), struct, array, time. Strings are bytes (no unicode checks).
+// path and v2), json (the configuration), time, struct, array. No binascii (its crc32 needs the
+// deflate module; protocol.py has its own), no unicode checks, no debug console (select, stdin).
 #ifndef MICROPY_CONFIG_ROM_LEVEL
 #define MICROPY_CONFIG_ROM_LEVEL    (MICROPY_CONFIG_ROM_LEVEL_CORE_FEATURES)
 #endif
+#define MICROPY_PY_TIME             (1)
 #define MICROPY_HELPER_REPL         (1)
 #define MICROPY_KBD_EXCEPTION       (1)
 #define MICROPY_STACK_CHECK         (1)
 #define MICROPY_ENABLE_FINALISER    (1)
 #define MICROPY_ENABLE_SCHEDULER    (1)
 #define MICROPY_MODULE_BUILTIN_INIT (1)
-#define MICROPY_STREAMS_NON_BLOCK   (1)
 #define MICROPY_PY_BUILTINS_MEMORYVIEW (1)
 #define MICROPY_PY_ARRAY_SLICE_ASSIGN (1)
 #define MICROPY_PY_JSON             (1)
-#define MICROPY_PY_SELECT           (1)
-#define MICROPY_PY_SYS_STDFILES     (1)
-#define MICROPY_PY_SYS_STDIO_BUFFER (1)
-#define MICROPY_PY_BINASCII         (1)
-#define MICROPY_PY_BINASCII_CRC32   (1)
-#define MICROPY_PY_OS               (1)
-#define MICROPY_PY_ERRNO            (1)
 #define MICROPY_EMIT_INLINE_THUMB   (0)
 #define MICROPY_OPT_COMPUTED_GOTO   (0)
 #define MICROPY_PY_BUILTINS_COMPLEX (0)

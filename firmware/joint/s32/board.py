@@ -76,4 +76,4 @@ def build_stepper(motor_cfg):
 def run():
     import machine
     from .. import app
-    app.run(cfg=load_config(machine.mem8), target_pins=False)
+    app.run(cfg=load_config(machine.mem8), target_pins=False, console=False)
