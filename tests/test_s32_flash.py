@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 
 from bioscara import cli, s32flash
-from bioscara.firmware import config as firmware_config
+from bioscara.firmware.config import schema as firmware_config
 
 FAKE_DFU = r'''#!PYTHON
 """A uStepper S32 in its ROM DFU bootloader, as dfu-util shows it (flash in $FAKE_DFU_DIR/flash.bin)."""

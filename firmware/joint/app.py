@@ -5,31 +5,30 @@ hardware at import time. An invalid configuration or a motor backend that fails 
 the joint disabled, reporting why on the serial console, instead of crashing.
 """
 
-from .clock import MonotonicClock
-from .core import JointController
-from .i2c_target import I2CTargetAdapter
-from .log import Logger
-from .protocol_v2 import MEM_ADDRSIZE
-from .settings import CONFIG_FILE
-from .v2 import ProtocolSwitch
+from .core.clock import MonotonicClock
+from .core.controller import JointController
+from .links.i2c_target import I2CTargetAdapter
+from .console.log import Logger
+from .spec.protocol_v2 import MEM_ADDRSIZE
+from .config.settings import CONFIG_FILE
+from .links.memmap_v2 import ProtocolSwitch
 
-# RP2040 DW_apb_i2c IC_STATUS of I2C0/I2C1 and its SLV_ACTIVITY bit: set while a transaction
-# addressed to the target is in progress. The v2 swap waits for it to clear.
-_RP2040_IC_STATUS = (0x40044070, 0x40048070)
-_SLV_ACTIVITY = 0x40
-# The I2C0/I2C1 blocks: the legacy adapter sets the RX FIFO threshold and the RX_DONE mask there.
-_RP2040_I2C = (0x40044000, 0x40048000)
 _SLOW_EVERY_MASK = 3  # the console and the legacy protocol switch: every 4th main-loop iteration
+
+
+def board_module(path):
+    """The module `path` of this package ("pico.motor"), imported by name: a board's manifest
+    (boards/) carries only its own motor backend and, where there is room, the console, so app.py
+    names them without importing them (the S32 image has neither pico/ nor the console)."""
+    return __import__(__name__[:-len("app")] + path, None, None, ("_",))
 
 
 def build_motor(cfg):
     backend = cfg.motor.get("backend")
     if backend == "pico":
-        from .pico.motor import PicoStepper
-        return PicoStepper.from_config(cfg.motor)
+        return board_module("pico.motor").PicoStepper.from_config(cfg.motor)
     if backend == "s32":
-        from .s32.board import build_stepper
-        return build_stepper(cfg.motor)
+        return board_module("s32.board").build_stepper(cfg.motor)
     raise ValueError("motor backend %r cannot run on a board" % cfg.motor.get("backend"))
 
 
@@ -37,7 +36,7 @@ def build(machine, config_path=CONFIG_FILE, clock=None, write=None, cfg=None):
     """Load the configuration (unless `cfg` is given: a board without a filesystem) and create
     the controller; returns (core, cfg, log)."""
     if cfg is None:
-        from . import config  # boot only (see _drop_boot_only)
+        from .config import schema as config  # boot only (see _drop_boot_only)
         cfg = config.load(config_path)
     log = Logger(cfg.joint or "joint", write=write)
     motor = None
@@ -56,8 +55,8 @@ def build(machine, config_path=CONFIG_FILE, clock=None, write=None, cfg=None):
 # schema and checks, the Pico backend's defaults and validation, the register spec's objects, the
 # builders of the controller and its IRQ tables (about 28 KB of heap together). The running joint
 # keeps what it needs of them in settings.py's objects, regtable.RegisterTable and its own state.
-BOOT_ONLY = ("config", "core_init", "irq_init", "pico.motor_config", "pico.tmc2209_setup", "protocol",
-             "protocol_v2")
+BOOT_ONLY = ("config.schema", "core.controller_init", "core.irq_init", "pico.motor_config",
+             "pico.tmc2209_setup", "spec.protocol", "spec.protocol_v2")
 
 
 def _drop_boot_only():
@@ -87,10 +86,12 @@ def bus_activity_probe(machine, bus):
     activity bit; elsewhere none (always false: a torn state block is then caught by its CRC)."""
     mem32 = getattr(machine, "mem32", None)
     if _on_rp2040(machine):
-        status = _RP2040_IC_STATUS[bus]
+        from .pico import IC_STATUS, SLV_ACTIVITY, i2c_registers
+
+        status = i2c_registers(bus) + IC_STATUS
 
         def active():
-            return mem32[status] & _SLV_ACTIVITY
+            return mem32[status] & SLV_ACTIVITY
         return active
 
     def never():
@@ -114,7 +115,11 @@ def join_bus(machine, core, cfg, log, target_pins=True):
         return machine.I2CTarget(i2c.bus, cfg.address, mem=mem, mem_addrsize=MEM_ADDRSIZE, **pins)
 
     probe = bus_activity_probe(machine, i2c.bus)
-    block = _RP2040_I2C[i2c.bus] if _on_rp2040(machine) else 0
+    # The legacy adapter sets the RX FIFO threshold and the RX_DONE mask in the target's I2C block.
+    block = 0
+    if _on_rp2040(machine):
+        from .pico import i2c_registers
+        block = i2c_registers(i2c.bus)
 
     def legacy_adapter(target):
         return I2CTargetAdapter(core, target, i2c.whole_reply_writes, probe, block)
@@ -151,10 +156,10 @@ def run(config_path=CONFIG_FILE, cfg=None, target_pins=True, console=True):
     switch = join_bus(machine, core, cfg, log, target_pins)
     debug = None
     if console:
-        from .debug import DebugConsole, UsbStdio
-        stdio = UsbStdio()
+        console = board_module("console.debug")
+        stdio = console.UsbStdio()
         log.set_writer(stdio.write)
-        debug = DebugConsole(core, stdio.read, stdio.write)
+        debug = console.DebugConsole(core, stdio.read, stdio.write)
     import gc
     gc.collect()
     log.info("booted: %d bytes of heap free" % gc.mem_free())  # the RAM left for the console and v2

@@ -8,11 +8,12 @@ real core on them through the legacy protocol, as a host would.
 import gc
 import sys
 
-from joint import config, protocol as P
-from joint.core import JointController
-from joint.fixed import ANGLE_Q, RPM_Q, STEPS_Q
-from joint.i2c_target import I2CTargetAdapter
-from joint.log import Logger
+from joint.config import schema as config
+from joint.spec import protocol as P
+from joint.core.controller import JointController
+from joint.motion.fixed import ANGLE_Q, RPM_Q, STEPS_Q
+from joint.links.i2c_target import I2CTargetAdapter
+from joint.console.log import Logger
 from joint.s32 import board as s32_board
 from joint.s32 import tmc5130 as tmc
 from joint.s32.motor import S32Stepper

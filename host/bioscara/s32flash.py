@@ -19,7 +19,7 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
-from .firmware import config as firmware_config
+from .firmware.config import schema as firmware_config
 from .flash import joint_config
 from .mpboard import FlashError
 from .errors import ConfigError

@@ -1,13 +1,17 @@
-# What the uStepper S32 image freezes: the joint firmware without the Pico backend, the simulator,
-# the CircuitPython link, the software ramp (the TMC5130 generates its own) and the debug console
-# (the log prints to the REPL's UART). opt=3 drops line numbers and asserts (flash is the budget: docs/s32.md).
-_JOINT = (
-    "__init__.py", "app.py", "clock.py", "config.py", "core.py", "core_init.py",
-    "emitters.py", "fixed.py", "hal.py", "handlers.py", "homing.py", "i2c_target.py", "irq.py",
-    "irq_init.py", "log.py", "loop.py", "protocol.py", "protocol_v2.py", "regtable.py",
-    "settings.py", "stall.py", "supervise.py", "tasks.py", "tracking.py", "v2.py", "velocity.py",
-    "version.py",
-    "s32/__init__.py", "s32/board.py", "s32/motor.py", "s32/tle5012b.py", "s32/tmc5130.py",
-)
-package("joint", files=_JOINT, base_path="$(BOARD_DIR)/../..", opt=3)
-module("main.py", opt=3)
+# The S32 image's frozen modules: exactly the files firmware/joint/boards/s32.py declares (the same
+# manifest `bioscara flash` and tests/test_flash.py read), compiled at -O3 (no line numbers or
+# asserts: flash is the budget, docs/s32.md), and its MAIN frozen as `main`, which runs at boot.
+import os as _os
+import runpy as _runpy
+
+_JOINT = _os.path.join(_os.path.dirname(_os.path.abspath(__file__)), "..", "..", "joint")
+_board = _runpy.run_path(_os.path.join(_JOINT, "boards", "s32.py"))
+_files = []
+for _entry in _board["FILES"]:
+    if _entry.endswith("/"):
+        _files += sorted(_entry + _name for _name in _os.listdir(_os.path.join(_JOINT, _entry))
+                         if _name.endswith(".py") and _entry + _name != _board["MAIN"])
+    else:
+        _files.append(_entry)
+package("joint", files=_files, base_path=_os.path.join(_JOINT, ".."), opt=3)
+module(_os.path.basename(_board["MAIN"]), base_path=_os.path.join(_JOINT, _os.path.dirname(_board["MAIN"])), opt=3)

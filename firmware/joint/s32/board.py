@@ -9,11 +9,7 @@ PA1 enable low, PC8 SD_MODE low and PC1 SPI_MODE high select its SPI/ramp mode);
 SPI3 (PC10 SCK, PC11 MISO, PC12 MOSI on the same data line, PA15 CS); the joint bus on I2C1.
 """
 
-try:
-    from micropython import const
-except ImportError:
-    def const(x):
-        return x
+from ..micro import const
 
 CONFIG_ADDRESS = const(0x0803F000)
 CONFIG_SIZE = const(4096)
@@ -37,8 +33,8 @@ def read_config(mem8, address=CONFIG_ADDRESS, size=CONFIG_SIZE):
 
 
 def load_config(mem8):
-    from .. import config  # boot only (app.BOOT_ONLY)
-    return config.parse_bytes(read_config(mem8), CONFIG_SOURCE)
+    from ..config import schema  # boot only (app.BOOT_ONLY)
+    return schema.parse_bytes(read_config(mem8), CONFIG_SOURCE)
 
 
 def mosi_release(machine):

@@ -11,8 +11,8 @@ rate (about 1 kHz, not 1541.85 Hz), so a stalled motor's error baseline v * T is
 driver_rpm() reports the true ramp speed (the library reported 0.596x of it).
 """
 
-from ..hal import MotorHAL
-from ..velocity import FixedVelocityEstimator
+from ..motion.hal import MotorHAL
+from ..motion.velocity import FixedVelocityEstimator
 from . import tmc5130 as tmc
 from .tle5012b import COUNTS_PER_REV
 

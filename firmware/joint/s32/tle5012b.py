@@ -13,11 +13,7 @@ LOW when a system error, an interface access error or an invalid angle is signal
 CRC-8 (polynomial 0x1D, seed 0xFF, result inverted) over the command and data words, MSB first.
 """
 
-try:
-    from micropython import const
-except ImportError:
-    def const(x):
-        return x
+from ..micro import const
 
 READ_ANGLE = const(0x8021)  # read, address 0x02 (AVAL), one data word
 SYSTEM_OK = const(0x4000)

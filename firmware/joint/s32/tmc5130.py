@@ -16,11 +16,7 @@ Register values are handled as signed 30-bit ints (wrapping at 2**30 like the HA
 so reading and writing allocate nothing.
 """
 
-try:
-    from micropython import const
-except ImportError:
-    def const(x):
-        return x
+from ..micro import const
 
 WRITE = const(0x80)
 GCONF = const(0x00)

@@ -31,16 +31,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "resistor...): validated as the firmware will, before the board is touched")
     parser.add_argument("--show-config", action="store_true",
                         help="only show the board's current /joint_config.json (and whether it is valid)")
+    parser.add_argument("--board", choices=flash.boards(), default=flash.DEFAULT_BOARD,
+                        help="which board's manifest to deploy (firmware/joint/boards/BOARD.py; default: %(default)s); "
+                        "s32: a uStepper S32 in its ROM DFU bootloader (BOOT0), written with dfu-util: the image "
+                        "from `make s32-image` and the joint's configuration (docs/s32.md)")
     parser.add_argument("--dry-run", action="store_true",
                         help="show what would change on the board, changing nothing; without PORT: the files "
                         "(and sizes) that would go onto a stock Raspberry Pi Pico, the joint config validated")
     parser.add_argument("--debug", action="store_true",
                         help="keep the source line numbers in the precompiled files, so that a traceback on the "
                         "board names the line (costs about 0.7 KB of the board's heap)")
-    parser.add_argument("--board", choices=("pico", "s32"), default="pico",
-                        help="pico: a MicroPython board over its serial port (default); s32: a uStepper S32 in its "
-                        "ROM DFU bootloader (BOOT0), written with dfu-util: the image from `make s32-image` and the "
-                        "joint's configuration (docs/s32.md)")
     parser.add_argument("--image", metavar="FIRMWARE.bin", default=str(s32flash.DEFAULT_IMAGE),
                         help=f"with --board s32: the image to write (default {s32flash.DEFAULT_IMAGE})")
     parser.add_argument("--boot-timeout", type=float, default=10.0, metavar="S",
@@ -74,11 +74,11 @@ def run(args: argparse.Namespace, session: Session) -> int:
     if args.joint and config is not None and args.joint != joint:
         raise InvalidArgumentError(f"{args.joint_config} configures {joint.lower()}, not {args.joint.lower()}")
     if args.port is None:
-        plan = flash.plan_without_board(joint, config, line_numbers=args.debug)
+        plan = flash.plan_without_board(joint, config, line_numbers=args.debug, manifest=args.board)
     else:
         board = mpboard.open_board(args.port)
         try:
-            plan = flash.plan(board, joint, config, line_numbers=args.debug)
+            plan = flash.plan(board, joint, config, line_numbers=args.debug, manifest=args.board)
             if not args.dry_run:
                 _apply(board, plan, session)
         finally:
@@ -143,7 +143,7 @@ def _run_s32(args: argparse.Namespace, session: Session) -> int:
 
 def _show_config(args: argparse.Namespace, session: Session) -> int:
     """The board's /joint_config.json, checked as its firmware checks it at boot."""
-    from ..firmware import config as firmware_config
+    from ..firmware.config import schema as firmware_config
 
     board = mpboard.open_board(args.port)
     try:
