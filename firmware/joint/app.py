@@ -5,6 +5,7 @@ hardware at import time. An invalid configuration or a motor backend that fails 
 the joint disabled, reporting why on the serial console, instead of crashing.
 """
 
+from . import micro
 from .core.clock import MonotonicClock
 from .core.controller import JointController
 from .links.i2c_target import I2CTargetAdapter
@@ -17,10 +18,7 @@ _SLOW_EVERY_MASK = 3  # the console and the legacy protocol switch: every 4th ma
 
 
 def board_module(path):
-    """The module `path` of this package ("pico.motor"), imported by name: a board's manifest
-    (boards/) carries only its own motor backend and, where there is room, the console, so app.py
-    names them without importing them (the S32 image has neither pico/ nor the console)."""
-    return __import__(__name__[:-len("app")] + path, None, None, ("_",))
+    return micro.board_module(__name__[:-len(".app")], path)
 
 
 def build_motor(cfg):
@@ -86,12 +84,12 @@ def bus_activity_probe(machine, bus):
     activity bit; elsewhere none (always false: a torn state block is then caught by its CRC)."""
     mem32 = getattr(machine, "mem32", None)
     if _on_rp2040(machine):
-        from .pico import IC_STATUS, SLV_ACTIVITY, i2c_registers
-
-        status = i2c_registers(bus) + IC_STATUS
+        pico = board_module("pico")
+        status = pico.i2c_registers(bus) + pico.IC_STATUS
+        activity = pico.SLV_ACTIVITY
 
         def active():
-            return mem32[status] & SLV_ACTIVITY
+            return mem32[status] & activity
         return active
 
     def never():
@@ -118,8 +116,7 @@ def join_bus(machine, core, cfg, log, target_pins=True):
     # The legacy adapter sets the RX FIFO threshold and the RX_DONE mask in the target's I2C block.
     block = 0
     if _on_rp2040(machine):
-        from .pico import i2c_registers
-        block = i2c_registers(i2c.bus)
+        block = board_module("pico").i2c_registers(i2c.bus)
 
     def legacy_adapter(target):
         return I2CTargetAdapter(core, target, i2c.whole_reply_writes, probe, block)

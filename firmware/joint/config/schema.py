@@ -9,6 +9,7 @@ Used at boot only on the board (the objects it builds are settings.py's).
 import json
 
 from ..core.supervise import DETECTOR_NAMES
+from ..micro import board_module
 from .settings import CONFIG_FILE, JOINTS, JointConfig, Section
 
 ADDRESSES = {"J1": 0x11, "J2": 0x12, "J3": 0x13, "J4": 0x14}
@@ -171,14 +172,15 @@ def _parse_motor(cfg, motor):
         cfg.errors.append("%s: motor.backend = %r is not one of %s" % (cfg.source, backend, ", ".join(BACKENDS)))
         return
     if backend == "pico":
-        from ..pico.motor_config import is_i2c_pin, validate_motor_config
+        motor_config = board_module(__name__[:-len(".config.schema")], "pico.motor_config")
+        is_i2c_pin = motor_config.is_i2c_pin
         bus = cfg.i2c
         for key, scl, role in (("sda", False, "SDA"), ("scl", True, "SCL")):
             pin = getattr(bus, key)
             if not is_i2c_pin(pin, bus.bus, scl):
                 cfg.errors.append("%s: i2c.%s = %d is not an %s pin of I2C%d on the Pico"
                                   % (cfg.source, key, pin, role, bus.bus))
-        for problem in validate_motor_config(motor, {"bus": bus.bus, "sda": bus.sda, "scl": bus.scl}):
+        for problem in motor_config.validate_motor_config(motor, {"bus": bus.bus, "sda": bus.sda, "scl": bus.scl}):
             cfg.errors.append("%s: motor: %s" % (cfg.source, problem))
     elif backend == "s32":
         if cfg.i2c.bus != S32_JOINT_BUS:
