@@ -9,7 +9,7 @@ CHIP_STAMP := chip/node_modules/.installed
 CHIP := $(if $(NPM),$(CHIP_STAMP))
 
 .PHONY: demo test bench bench-safety derive-safety chip-costs bench-chip clean browser panel-screenshot \
-	s32-toolchain s32-image bench-s32
+	s32-toolchain s32-image s32-emu bench-s32
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -79,8 +79,18 @@ s32-image: s32-toolchain
 	  SOURCE_DATE_EPOCH=1775481169 $(MAKE) -C $(S32_TREE)/ports/stm32 -j2 --no-print-directory $(S32_FLAGS) && \
 	  ls -l build/s32/firmware.bin build/s32/firmware.dfu; fi
 
+# Qiling boots the S32 image for bench-s32's heap figure (tests/s32_emu.py), in an environment of
+# its own: it pins unicorn 2.0.1.post1, and its dependencies stay out of the project's.
+S32_EMU := build/qiling-venv/.installed
+$(S32_EMU):
+	$(PYTHON) -m venv build/qiling-venv
+	build/qiling-venv/bin/python -m pip install --quiet qiling==1.4.6 unicorn==2.0.1.post1
+	touch $@
+
+s32-emu: $(S32_EMU)
+
 # Flash and heap figures of the S32 image (builds it first; says what is missing).
-bench-s32: $(STAMP) s32-image
+bench-s32: $(STAMP) s32-image s32-emu
 	$(BIN)/python bench/s32_image.py build/s32
 
 clean:

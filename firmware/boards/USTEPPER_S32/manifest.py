@@ -4,7 +4,7 @@
 import os as _os
 import runpy as _runpy
 
-_JOINT = _os.path.join(_os.path.dirname(_os.path.abspath(__file__)), "..", "..", "joint")
+_JOINT = _os.path.join(_os.getcwd(), "..", "..", "joint")  # manifests run in their own folder
 _board = _runpy.run_path(_os.path.join(_JOINT, "boards", "s32.py"))
 _files = []
 for _entry in _board["FILES"]:
