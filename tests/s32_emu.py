@@ -138,7 +138,14 @@ class EmulatedS32:
 
 def main(flash: str) -> int:
     emu = EmulatedS32(pathlib.Path(flash))
-    if not emu.run_until(b"heap free"):
+    try:
+        booted = emu.run_until(b"heap free")
+    except Exception as exc:  # unicorn's fault (UcError), with the CPU's state: the emulation stopped
+        regs = emu.ql.arch.regs
+        sys.stderr.write(emu.output.decode(errors="replace"))
+        sys.stderr.write(f"\nemulation stopped: {exc} at pc 0x{regs.read('pc'):08x} (lr 0x{regs.read('lr'):08x})\n")
+        return 1
+    if not booted:
         sys.stderr.write("the emulated S32 did not report its heap; its output:\n" + emu.output.decode(errors="replace"))
         return 1
     sys.stderr.write(emu.output.decode(errors="replace"))
