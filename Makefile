@@ -24,7 +24,7 @@ $(CHIP_STAMP): chip/package.json chip/package-lock.json
 demo: $(STAMP)
 	$(BIN)/bioscara demo
 
-test: $(STAMP) browser $(CHIP)
+test: $(STAMP) browser $(CHIP) s32-image
 	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/python -m pytest
 
 bench: $(STAMP)
