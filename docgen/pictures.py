@@ -161,8 +161,8 @@ ARCHITECTURE = {
         ("Bus: smbus2, blinka, serial bridge, sim", ["host/bioscara/bus"]),
     ],
     "joint": [  # bottom-aligned with the host's: the spec beside the host's links, the IRQ path on the bus
-        ("motor HAL: Pico backend or simulated uStepper", ["firmware/joint/motion", "firmware/joint/pico",
-                                                           "firmware/joint/sim"]),
+        ("motor HAL: Pico, uStepper S32 or simulated stepper", ["firmware/joint/motion", "firmware/joint/pico",
+                                                                "firmware/joint/s32", "firmware/joint/sim"]),
         ("main loop: commands, HOME, stall, deadman, replies", ["firmware/joint/core", "firmware/joint/detect"]),
         ("protocol spec: the same files as the host's", ["firmware/joint/spec"]),
         ("IRQ path and v2 link: bytes in, cached reply out", ["firmware/joint/links", "firmware/joint/core/irq.py"]),
@@ -195,7 +195,8 @@ def architecture() -> bytes:
             ax.add_patch(FancyBboxPatch((x, y), width, 0.65, boxstyle="round,pad=0.02", facecolor=colour,
                                         edgecolor="#444444"))
             ax.text(x + width / 2, y + 0.43, what, ha="center", va="center", fontsize=8)
-            ax.text(x + width / 2, y + 0.17, ", ".join(path.removeprefix(root) for path in paths), ha="center",
+            shown = ", ".join(path.removeprefix(root) + ("/" if (ROOT / path).is_dir() else "") for path in paths)
+            ax.text(x + width / 2, y + 0.17, shown, ha="center",
                     va="center", fontsize=6.5, color="#555555", family="monospace")
     middle = width + gap / 2
     ax.annotate("", xy=(width + gap, 0.33), xytext=(width, 0.33), arrowprops={"arrowstyle": "<->", "lw": 2})
