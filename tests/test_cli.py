@@ -285,9 +285,9 @@ def test_piped_output_is_plain_lines(capsys: pytest.CaptureFixture[str], bus: Si
 def test_hardware_doc_has_the_generated_pin_map_and_the_readme_cites_only_files_in_the_repo() -> None:
     from pathlib import Path
 
-    from bioscara import flash, wiring
+    from bioscara import firmware_flash, wiring
     root = Path(__file__).resolve().parent.parent
-    assert wiring.markdown(flash.joint_config("J1")[1]) in (root / "docs" / "hardware.md").read_text(), \
+    assert wiring.markdown(firmware_flash.joint_config("J1")[1]) in (root / "docs" / "hardware.md").read_text(), \
         "docs/hardware.md: paste the output of `bioscara pins j1 --markdown`"
     readme = (root / "README.md").read_text()
     for cited in re.findall(r"`([\w./-]+\.md)`", readme):

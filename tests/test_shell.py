@@ -20,7 +20,7 @@ from bioscara.cli import main
 from bioscara.commands.shell import Context, _completer, interactive
 from bioscara.config import ArmConfig
 from bioscara.firmware import protocol as P
-from bioscara.shell import Shell
+from bioscara.shell_interpreter import Shell
 
 from conftest import Recorder
 

@@ -17,7 +17,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from ..console import PLOT_COLUMNS, JointConsole, plot
+from ..serial_console import PLOT_COLUMNS, JointConsole, plot
 from ..errors import BioscaraError, InvalidArgumentError
 from ..firmware.debug_commands import TRACE_COLUMNS
 from ..paths import default_state_dir, private_file

@@ -6,7 +6,7 @@ import argparse
 
 from rich.table import Table
 
-from .. import flash, wiring
+from .. import firmware_flash, wiring
 from ..errors import InvalidArgumentError
 from ..session import Session
 
@@ -22,10 +22,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace, session: Session) -> int:
-    if args.joint.upper() in flash.JOINTS:
-        _, cfg = flash.joint_config(args.joint.upper())
+    if args.joint.upper() in firmware_flash.JOINTS:
+        _, cfg = firmware_flash.joint_config(args.joint.upper())
     else:
-        _, cfg = flash.user_joint_config(args.joint)
+        _, cfg = firmware_flash.user_joint_config(args.joint)
     rows = wiring.pin_map(cfg)
     if args.markdown and session.json:
         raise InvalidArgumentError("--markdown or --json: one output at a time")

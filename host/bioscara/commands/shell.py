@@ -1,4 +1,4 @@
-"""`bioscara shell`: the interactive console (`bioscara.shell`) behind a prompt_toolkit line editor.
+"""`bioscara shell`: the interactive console (`bioscara.shell_interpreter`) behind a prompt_toolkit line editor.
 
 Interactive on a terminal (history, tab completion, Ctrl-C cancels the line, Ctrl-D leaves);
 non-interactive with `--script FILE` or when stdin is not a terminal, exiting 1 at the first
@@ -22,7 +22,7 @@ from ..paths import default_state_dir, private_file
 from ..hardware import open_arm, open_arm_bus
 from ..session import Session
 from ..errors import InvalidArgumentError
-from ..shell import Shell, script_lines
+from ..shell_interpreter import Shell, script_lines
 from .options import count, positive
 
 NAME = "shell"
