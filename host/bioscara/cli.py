@@ -14,7 +14,7 @@ import logging
 import sys
 from collections.abc import Sequence
 
-from . import __version__
+from . import __version__, interruption
 from .arm import PROTOCOLS
 from .bus import Bus
 from .commands import COMMANDS
@@ -91,13 +91,20 @@ def main(argv: list[str] | None = None, *, bus: Bus | None = None) -> int:
     level = (logging.WARNING, logging.INFO, logging.DEBUG)[min(args.verbose, 2)]
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
     session = Session(args, bus)
+    with interruption.stop_on_signals():
+        return _run(args, session)
+
+
+def _run(args: argparse.Namespace, session: Session) -> int:
     try:
         if args.json and "json" not in args.uses:
             raise InvalidArgumentError(f"`bioscara {args.command}` has no --json output")
         return int(args.handler(args, session) or 0)
-    except KeyboardInterrupt:
-        session.err("interrupted")
-        return 130
+    except KeyboardInterrupt as exc:  # Ctrl-C, SIGTERM, SIGHUP: a joint this command moves stops here
+        cause = exc.cause if isinstance(exc, interruption.Interrupted) else "Ctrl-C"
+        session.err(f"interrupted ({cause})")
+        interruption.stop_arms(session.arms, session.err)
+        return interruption.exit_status(exc)
     except (ConfigError, InvalidArgumentError) as exc:
         session.fail(exc, USAGE)
         return USAGE

@@ -32,6 +32,7 @@ class Session:
         self._owns_bus = bus is None
         self._arm: Arm | None = None
         self._opened: list[Arm | Joint] = []  # released at close()
+        self.arms: list[Arm] = []  # stopped when a signal ends the command (interruption.stop_arms)
 
     @property
     def config(self) -> ArmConfig:
@@ -53,7 +54,14 @@ class Session:
 
     def _keep(self, what: Any) -> Any:
         self._opened.append(what)
+        if isinstance(what, Arm):
+            self.arms.append(what)
         return what
+
+    def drives(self, arm: Arm) -> Arm:
+        """An arm the command opened itself (shell, panel): stopped like the session's own on a signal."""
+        self.arms.append(arm)
+        return arm
 
     @property
     def protocol(self) -> str:

@@ -1,0 +1,98 @@
+"""A user's sessions with the shared simulated arm: real `bioscara` processes in real time,
+signalled and piped as a person or a supervisor would. Each waits on what the process prints
+(bounded), never on a guessed delay.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import selectors
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from tests.test_sim_service import quick_config, state_dir  # noqa: F401 (a fixture)
+
+BIOSCARA = [sys.executable, "-m", "bioscara.cli"]
+PROGRESS = re.compile(r"^j1 at ([-+][0-9.]+) rad, target ([-+][0-9.]+) rad")
+STOPPED = re.compile(r"^stopped j1 at ([-+][0-9.]+) rad$", re.M)
+
+
+def bioscara(*argv: str, timeout: float = 60.0) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([*BIOSCARA, *argv], capture_output=True, text=True, timeout=timeout)
+
+
+def spawn(*argv: str) -> subprocess.Popen[str]:
+    # SIGINT as a terminal delivers it, even when pytest runs as a background job (which ignores it)
+    return subprocess.Popen([*BIOSCARA, *argv], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+
+
+def wait_for_line(stream: object, pattern: re.Pattern[str], timeout: float) -> tuple[re.Match[str] | None, list[str]]:
+    """Read lines until one matches `pattern` (None after `timeout` s or at the end of the stream)."""
+    seen: list[str] = []
+    deadline = time.monotonic() + timeout
+    with selectors.DefaultSelector() as selector:
+        selector.register(stream, selectors.EVENT_READ)  # type: ignore[arg-type]
+        while time.monotonic() < deadline:
+            if not selector.select(deadline - time.monotonic()):
+                break
+            line = stream.readline()  # type: ignore[attr-defined]
+            if not line:
+                break
+            seen.append(line.rstrip("\n"))
+            match = pattern.match(line)
+            if match:
+                return match, seen
+    return None, seen
+
+
+def position(config: Path) -> float:
+    result = bioscara("info", "j1", "--json", "--config", str(config))
+    assert result.returncode == 0, result.stderr
+    return float(json.loads(result.stdout)["position"])
+
+
+@pytest.mark.parametrize("signals", [(signal.SIGINT, signal.SIGTERM, signal.SIGHUP)])
+def test_a_signal_stops_a_move_midway_and_says_where(state_dir: Path, tmp_path: Path,  # noqa: F811
+                                                     signals: tuple[signal.Signals, ...]) -> None:
+    config = str(quick_config(tmp_path))
+    homed = bioscara("home", "j1", "--config", config)
+    assert homed.returncode == 0, homed.stderr
+    for signum in signals:
+        start = position(Path(config))
+        target = -2.5 if start > 0 else 2.5  # the far side: seconds of motion to interrupt
+        move = spawn("move", "j1", str(target), "--config", config)
+        try:
+            # The progress lines (stderr, one every 0.5 s when not on a terminal) until j1 has gone 0.5 rad.
+            moved = None
+            seen: list[str] = []
+            while moved is None:
+                match, lines = wait_for_line(move.stderr, PROGRESS, 30.0)
+                seen += lines
+                assert match is not None, f"no progress line showing the move: {seen}"
+                assert float(match.group(2)) == target
+                if abs(float(match.group(1)) - start) >= 0.5:
+                    moved = float(match.group(1))
+            assert abs(moved - target) > 0.5, f"the move was over before it could be interrupted: {seen}"
+            move.send_signal(signum)
+            out, err = move.communicate(timeout=30)
+        finally:
+            if move.poll() is None:
+                move.kill()
+                move.communicate()
+        assert move.returncode == 128 + signum, (move.returncode, err)
+        assert "Traceback" not in err
+        stopped = STOPPED.search(err)
+        assert stopped is not None, err
+        where = float(stopped.group(1))
+        assert abs(where - target) > 0.1, "the joint stopped short of the target"
+        # Where it said it stopped is where it stays: no change over the next second of reads.
+        deadline = time.monotonic() + 1.0
+        while time.monotonic() < deadline:
+            assert abs(position(Path(config)) - where) < 2e-3
