@@ -96,3 +96,41 @@ def test_a_signal_stops_a_move_midway_and_says_where(state_dir: Path, tmp_path: 
         deadline = time.monotonic() + 1.0
         while time.monotonic() < deadline:
             assert abs(position(Path(config)) - where) < 2e-3
+
+
+def pipe_into_head(lines: int, *argv: str) -> tuple[int, str, str]:
+    """`bioscara ARGV | head -LINES`: bioscara's exit status and stderr, head's output."""
+    producer = subprocess.Popen([*BIOSCARA, *argv], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    head = subprocess.Popen(["head", f"-{lines}"], stdin=producer.stdout, stdout=subprocess.PIPE, text=True)
+    assert producer.stdout is not None
+    producer.stdout.close()  # head holds the pipe's only reading end: when it exits, the pipe is broken
+    try:
+        shown, _ = head.communicate(timeout=60)
+        _, err = producer.communicate(timeout=60)
+    finally:
+        for process in (producer, head):
+            if process.poll() is None:
+                process.kill()
+                process.wait()
+    return producer.returncode, err, shown
+
+
+def test_monitor_into_head_ends_quietly() -> None:
+    status, err, shown = pipe_into_head(2, "monitor", "--bus", "sim:virtual")
+    assert len(shown.splitlines()) == 2 and " rad/s " in shown
+    assert status == 141 and err == "", err  # 128 + SIGPIPE, as `yes | head`; no traceback, no error
+
+
+def test_console_into_head_ends_quietly_and_the_bridge_is_named(state_dir: Path) -> None:  # noqa: F811
+    from bioscara import sim_service
+
+    assert bioscara("sim", "start").returncode == 0
+    status = sim_service.status(state_dir)
+    assert status is not None
+    code, err, shown = pipe_into_head(3, "console", status["consoles"]["J1"], "-c", "status", "-c", "regs",
+                                      "--duration", "5")
+    assert len(shown.splitlines()) == 3 and shown.startswith("J1 at 0x11")
+    assert code == 141 and "Traceback" not in err and err == "", err
+    bridge = bioscara("console", status["bridge"], "-c", "status")
+    assert bridge.returncode == 1
+    assert f"nothing answered on {status['bridge']}: it is not a joint's debug console" in bridge.stderr

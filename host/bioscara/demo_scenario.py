@@ -8,7 +8,7 @@ from dataclasses import dataclass, replace
 from rich.console import Console
 from rich.table import Table
 
-from . import motion
+from . import motion, report
 from .communicator import Communicator
 from .config import ArmConfig, load_config
 from .hardware import open_arm, open_gripper
@@ -69,7 +69,7 @@ def run(config: ArmConfig | None = None, console: Console | None = None) -> list
             gripper.close()
         arm.shutdown()
         arm.bus.close()
-    console.print(_table(steps))
+    console.print(report.for_terminal(_table(steps), console.is_terminal))
     stats = runner.stats
     console.print(f"communicator: {stats.cycles} cycles at {stats.rate:.1f} Hz (target {runner.frequency:g}), "
                   f"jitter {stats.jitter * 1e6:.0f} us, {stats.overruns} overruns, "

@@ -10,6 +10,7 @@ from typing import Any
 
 from rich.console import Console
 
+from . import report
 from .arm import Arm, make_joint
 from .bus import Bus
 from .config import ArmConfig, resolve_config
@@ -82,7 +83,7 @@ class Session:
         if self.json:
             sys.stdout.write(json.dumps(data, default=str) + "\n")
         else:
-            self.console.print(human if human is not None else data)
+            self.console.print(report.for_terminal(human if human is not None else data, self.console.is_terminal))
 
     def err(self, message: str) -> None:
         Console(stderr=True, soft_wrap=True).print(message, style="red", markup=False, highlight=False)

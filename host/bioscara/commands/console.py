@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from ..serial_console import PLOT_COLUMNS, JointConsole, plot
-from ..errors import BioscaraError, InvalidArgumentError
+from ..errors import BioscaraError, CommError, InvalidArgumentError
 from ..firmware.debug_commands import TRACE_COLUMNS
 from ..paths import default_state_dir, private_file
 from ..serial_port import DEFAULT_BAUD
@@ -91,13 +91,19 @@ class Printer:
     def __init__(self) -> None:
         self._lock = threading.Lock()
         self.joint_errors = 0
+        self.reader_gone = False  # stdout is a pipe whose reader left (`| head`)
 
     def __call__(self, line: str) -> None:
         words = line.split(maxsplit=2)
         with self._lock:
             if line.startswith("error:") or len(words) > 1 and words[1] == "ERROR":
                 self.joint_errors += 1
-            print(line, flush=True)
+            if self.reader_gone:
+                return
+            try:
+                print(line, flush=True)
+            except BrokenPipeError:  # in the reader thread: the command ends when the main thread looks
+                self.reader_gone = True
 
 
 def batch(console: JointConsole, lines: list[str], duration: float, out: Printer,
@@ -112,7 +118,14 @@ def batch(console: JointConsole, lines: list[str], duration: float, out: Printer
             status = 1
         elif isinstance(outcome, tuple):
             columns = outcome
-    time.sleep(duration)  # the joint answers and logs meanwhile (the reader thread prints)
+    deadline = time.monotonic() + duration  # the joint answers and logs meanwhile (the reader thread prints)
+    while not out.reader_gone and time.monotonic() < deadline:
+        time.sleep(min(0.05, max(deadline - time.monotonic(), 0)))
+    if out.reader_gone:
+        raise BrokenPipeError
+    if lines and not console.lines_received:
+        raise CommError(f"nothing answered on {console.path}: it is not a joint's debug console (a HIL bridge "
+                        f"is used with --bus serial:{console.path}); `bioscara ports {console.path}` says what it is")
     if out.joint_errors:
         status = 1
     if columns is not None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import re
 
 from rich.table import Table
 
@@ -24,6 +25,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace, session: Session) -> int:
     if args.joint.upper() in firmware_flash.JOINTS:
         _, cfg = firmware_flash.joint_config(args.joint.upper())
+    elif re.fullmatch(r"[jJ]\d+", args.joint):
+        raise InvalidArgumentError(f"no joint {args.joint}; the joints are "
+                                   f"{', '.join(j.lower() for j in firmware_flash.JOINTS)} (or a FILE.json you wrote)")
     else:
         _, cfg = firmware_flash.user_joint_config(args.joint)
     rows = wiring.pin_map(cfg)
