@@ -134,3 +134,73 @@ def test_console_into_head_ends_quietly_and_the_bridge_is_named(state_dir: Path)
     bridge = bioscara("console", status["bridge"], "-c", "status")
     assert bridge.returncode == 1
     assert f"nothing answered on {status['bridge']}: it is not a joint's debug console" in bridge.stderr
+
+
+def test_sigterm_stops_the_demo_midway_and_says_where() -> None:
+    """The demo's arm (the in-process simulator here: BIOSCARA_BUS=sim:virtual) stops like `move`'s."""
+    demo = spawn("demo")
+    try:
+        step, seen = wait_for_line(demo.stdout, re.compile(r"^  above pick: done"), 120.0)
+        assert step is not None, seen
+        demo.send_signal(signal.SIGTERM)
+        _, err = demo.communicate(timeout=60)
+    finally:
+        if demo.poll() is None:
+            demo.kill()
+            demo.communicate()
+    assert demo.returncode == 128 + signal.SIGTERM, err
+    assert "interrupted (SIGTERM)" in err and "Traceback" not in err
+    assert re.search(r"^stopped j1 at [-+]\d\.\d{5} rad, j2 at [-+]\d\.\d{5} m, j3 at .*, j4 at ", err, re.M), err
+
+
+def test_a_directory_in_the_sockets_place_is_a_clear_error(state_dir: Path) -> None:  # noqa: F811
+    (state_dir / "sim.sock").mkdir(parents=True)
+    result = bioscara("scan")
+    assert result.returncode == 1 and "Traceback" not in result.stderr
+    assert f"{state_dir / 'sim.sock'} is a directory, not the simulated arm's socket: remove it" in result.stderr
+    assert "Traceback" not in (state_dir / "sim.log").read_text()
+
+
+class RecordingBus:
+    def __init__(self) -> None:
+        self.transfers: list[tuple[int, bytes | None, int]] = []
+
+    def transfer(self, addr: int, write: bytes | None, read_len: int) -> bytes:
+        self.transfers.append((addr, write, read_len))
+        return bytes(read_len)
+
+
+def test_the_service_drops_a_request_whose_client_gave_up(tmp_path: Path) -> None:
+    """A client that timed out (it reported a CommError and hung up) must not see its command
+    applied later, when the busy service reaches it (a -360 degree turn after the error)."""
+    import socket
+    from types import SimpleNamespace
+
+    from bioscara import sim_service
+
+    path = tmp_path / "s.sock"
+    listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    listener.bind(str(path))
+    listener.listen(4)
+    listener.setblocking(False)
+    bus = RecordingBus()
+    frontend = sim_service.SocketFrontend(SimpleNamespace(bus=bus), listener, {})
+    request = bytes((0x11, 1, 1, 0x2A, 1, 2, 3, 4))  # XFER to 0x11: a command frame, 1 byte read back
+    body = bytes((sim_service.XFER,)) + request
+    frame = sim_service._LENGTH.pack(len(body)) + body
+    try:
+        gone = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        gone.connect(str(path))
+        gone.sendall(frame)
+        gone.close()  # the client's timeout: it hangs up before the service got to it
+        staying = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        staying.connect(str(path))
+        staying.sendall(frame)
+        staying.settimeout(5)
+        frontend.poll()
+        assert staying.recv(5)[4] == sim_service.OK, "a client that waits is answered"
+        assert bus.transfers == [(0x11, bytes((0x2A, 1, 2, 3, 4)), 1)], "once: the hung-up client's was dropped"
+        staying.close()
+    finally:
+        frontend.close()
+        listener.close()
