@@ -275,7 +275,7 @@ def test_one_shape_for_the_command_line(capsys: pytest.CaptureFixture[str], tmp_
 def test_piped_output_is_plain_lines(capsys: pytest.CaptureFixture[str], bus: SimBus) -> None:
     code, out, err = run(capsys, "home", "j3", bus=bus)
     assert code == 0
-    assert re.fullmatch(r"j3: homed at \+2\.\d{5} rad after [-+]\d\.\d{3} rad of travel\nhomed j3 in \d+\.\d s\n", out), out
+    assert re.fullmatch(r"j3: homed at \+2\.\d{5} rad\nj3: travelled [-+]\d\.\d{3} rad\nhomed j3 in \d+\.\d s\n", out), out
     assert re.match(r"j3 homing, travel [-+]\d\.\d{3} rad; \d+\.\d s$", err.splitlines()[0]), "progress on stderr"
     assert "\x1b" not in out
     code, out, _ = run(capsys, "monitor", "--samples", "2", bus=bus)

@@ -79,7 +79,8 @@ def run(args: argparse.Namespace, session: Session) -> int:
     joints = [{**report.joint_ref(name, arm[name].config), "homed": True, "position": arm[name].state.position,
                "travel": travel.travel[name]} for name in names]
     session.emit({"joints": joints, "seconds": seconds},
-                 "\n".join([f"{j['joint']}: homed at {report.value(j['position'], arm[j['joint']].config)} "
-                            f"after {report.value(j['travel'], arm[j['joint']].config, digits=3)} of travel"
-                            for j in joints] + [f"homed {', '.join(names)} in {seconds:.1f} s"]))
+                 "\n".join([line for j in joints for line in (
+                     f"{j['joint']}: homed at {report.value(j['position'], arm[j['joint']].config)}",
+                     f"{j['joint']}: travelled {report.value(j['travel'], arm[j['joint']].config, digits=3)}")]
+                     + [f"homed {', '.join(names)} in {seconds:.1f} s"]))
     return 0
