@@ -204,3 +204,32 @@ def test_the_service_drops_a_request_whose_client_gave_up(tmp_path: Path) -> Non
     finally:
         frontend.close()
         listener.close()
+
+
+def test_sigterm_stops_a_shell_script_midway_and_says_where(state_dir: Path, tmp_path: Path) -> None:  # noqa: F811
+    config = str(quick_config(tmp_path))
+    assert bioscara("home", "j1", "--config", config).returncode == 0
+    start = position(Path(config))
+    target = -2.5 if start > 0 else 2.5
+    script = tmp_path / "move.txt"
+    # A second of the move, then a long wait: the signal comes once the script says it waits.
+    script.write_text(f"configure\nactivate\nmode j1 position\nset j1 position {target}\nwait 1\nwait 30\n")
+    shell = spawn("shell", "--script", str(script), "--config", config)
+    try:
+        started, seen = wait_for_line(shell.stdout, re.compile(r"^> wait 30$"), 60.0)
+        assert started is not None, seen
+        shell.send_signal(signal.SIGTERM)
+        _, err = shell.communicate(timeout=30)
+    finally:
+        if shell.poll() is None:
+            shell.kill()
+            shell.communicate()
+    assert shell.returncode == 128 + signal.SIGTERM, err
+    stopped = re.search(r"^leaving the shell: stopped j1 at ([-+][0-9.]+) rad, j2 \(not homed\), j3 \(not homed\), "
+                        r"j4 \(not homed\); the joints keep holding$", err, re.M)
+    assert stopped is not None and "Traceback" not in err, err
+    where = float(stopped.group(1))
+    assert abs(where - start) > 0.3 and abs(where - target) > 0.1, "stopped midway"
+    deadline = time.monotonic() + 1.0
+    while time.monotonic() < deadline:
+        assert abs(position(Path(config)) - where) < 2e-3

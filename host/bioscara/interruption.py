@@ -15,7 +15,7 @@ from collections.abc import Callable, Iterable, Iterator
 
 from . import report
 from .arm import Arm, Lifecycle
-from .errors import BioscaraError
+from .errors import BioscaraError, NotHomedError
 
 SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 SETTLE_S = 5.0  # longest deceleration from top speed at the slowest configured deceleration, with margin
@@ -88,6 +88,8 @@ def stop_arms(arms: Iterable[Arm], say: Callable[[str], None], settle: float = S
         for name, aj in arm.joints.items():
             try:
                 where.append(f"{name} at {report.value(aj.joint.get_position(), aj.config)}")
+            except NotHomedError:
+                where.append(f"{name} (not homed)")
             except BioscaraError as exc:
                 where.append(f"{name} position unknown ({exc.detail})")
         say(f"stopped {', '.join(where)}")
