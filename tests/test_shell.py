@@ -19,7 +19,7 @@ from bioscara.bus.sim import SimBus
 from bioscara.cli import main
 from bioscara.commands.shell import Context, _completer, interactive
 from bioscara.config import ArmConfig
-from bioscara.firmware import protocol as P
+from bioscara.firmware.spec import protocol as P
 from bioscara.hardware import sim_joint_specs
 from bioscara.shell_interpreter import Shell
 

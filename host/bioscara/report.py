@@ -16,7 +16,7 @@ from typing import Any
 from rich.table import Table
 
 from .config import JointConfig
-from .firmware import protocol as P
+from .firmware.spec import protocol as P
 
 
 def unit(jc: JointConfig) -> str:
