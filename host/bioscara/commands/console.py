@@ -38,6 +38,7 @@ LOCAL_HELP = (
     ":quit               leave (also Ctrl-D)",
 )
 PLOT_WINDOW_S = 5.0
+FIRST_ANSWER_S = 1.0  # a joint answers a command within milliseconds; the HIL bridge never does
 OK, ERROR, QUIT = "ok", "error", "quit"  # outcomes of a line; a plot request is its columns (a tuple)
 Outcome = str | tuple[str, ...]
 
@@ -118,9 +119,15 @@ def batch(console: JointConsole, lines: list[str], duration: float, out: Printer
             status = 1
         elif isinstance(outcome, tuple):
             columns = outcome
-    deadline = time.monotonic() + duration  # the joint answers and logs meanwhile (the reader thread prints)
-    while not out.reader_gone and time.monotonic() < deadline:
-        time.sleep(min(0.05, max(deadline - time.monotonic(), 0)))
+    # The joint answers and logs meanwhile (the reader thread prints); a port that has said nothing
+    # yet gets FIRST_ANSWER_S, so a short --duration still tells a silent port from a joint.
+    start = time.monotonic()
+
+    def waiting() -> bool:
+        now = time.monotonic()
+        return now < start + duration or bool(lines) and not console.lines_received and now < start + FIRST_ANSWER_S
+    while not out.reader_gone and waiting():
+        time.sleep(0.02)
     if out.reader_gone:
         raise BrokenPipeError
     if lines and not console.lines_received:
