@@ -5,6 +5,7 @@ signalled and piped as a person or a supervisor would. Each waits on what the pr
 
 from __future__ import annotations
 
+import contextlib
 import json
 import re
 import selectors
@@ -12,6 +13,7 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -27,10 +29,18 @@ def bioscara(*argv: str, timeout: float = 60.0) -> subprocess.CompletedProcess[s
     return subprocess.run([*BIOSCARA, *argv], capture_output=True, text=True, timeout=timeout)
 
 
-def spawn(*argv: str) -> subprocess.Popen[str]:
+@contextlib.contextmanager
+def running(*argv: str) -> Iterator[subprocess.Popen[str]]:
+    """`bioscara ARGV` in the background; killed at the end if a failed assertion left it running."""
     # SIGINT as a terminal delivers it, even when pytest runs as a background job (which ignores it)
-    return subprocess.Popen([*BIOSCARA, *argv], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    process = subprocess.Popen([*BIOSCARA, *argv], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                               preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    try:
+        yield process
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.communicate()
 
 
 def wait_for_line(stream: object, pattern: re.Pattern[str], timeout: float) -> tuple[re.Match[str] | None, list[str]]:
@@ -58,6 +68,13 @@ def position(config: Path) -> float:
     return float(json.loads(result.stdout)["position"])
 
 
+def stays(config: Path, where: float) -> None:
+    """Where the command said j1 stopped is where it stays: no change over the next second of reads."""
+    deadline = time.monotonic() + 1.0
+    while time.monotonic() < deadline:
+        assert abs(position(config) - where) < 2e-3
+
+
 @pytest.mark.parametrize("signals", [(signal.SIGINT, signal.SIGTERM, signal.SIGHUP)])
 def test_a_signal_stops_a_move_midway_and_says_where(state_dir: Path, tmp_path: Path,  # noqa: F811
                                                      signals: tuple[signal.Signals, ...]) -> None:
@@ -67,8 +84,7 @@ def test_a_signal_stops_a_move_midway_and_says_where(state_dir: Path, tmp_path: 
     for signum in signals:
         start = position(Path(config))
         target = -2.5 if start > 0 else 2.5  # the far side: seconds of motion to interrupt
-        move = spawn("move", "j1", str(target), "--config", config)
-        try:
+        with running("move", "j1", str(target), "--config", config) as move:
             # The progress lines (stderr, one every 0.5 s when not on a terminal) until j1 has gone 0.5 rad.
             moved = None
             seen: list[str] = []
@@ -82,20 +98,13 @@ def test_a_signal_stops_a_move_midway_and_says_where(state_dir: Path, tmp_path: 
             assert abs(moved - target) > 0.5, f"the move was over before it could be interrupted: {seen}"
             move.send_signal(signum)
             out, err = move.communicate(timeout=30)
-        finally:
-            if move.poll() is None:
-                move.kill()
-                move.communicate()
         assert move.returncode == 128 + signum, (move.returncode, err)
         assert "Traceback" not in err
         stopped = STOPPED.search(err)
         assert stopped is not None, err
         where = float(stopped.group(1))
         assert abs(where - target) > 0.1, "the joint stopped short of the target"
-        # Where it said it stopped is where it stays: no change over the next second of reads.
-        deadline = time.monotonic() + 1.0
-        while time.monotonic() < deadline:
-            assert abs(position(Path(config)) - where) < 2e-3
+        stays(Path(config), where)
 
 
 def pipe_into_head(lines: int, *argv: str) -> tuple[int, str, str]:
@@ -138,16 +147,11 @@ def test_console_into_head_ends_quietly_and_the_bridge_is_named(state_dir: Path)
 
 def test_sigterm_stops_the_demo_midway_and_says_where() -> None:
     """The demo's arm (the in-process simulator here: BIOSCARA_BUS=sim:virtual) stops like `move`'s."""
-    demo = spawn("demo")
-    try:
+    with running("demo") as demo:
         step, seen = wait_for_line(demo.stdout, re.compile(r"^  above pick: done"), 120.0)
         assert step is not None, seen
         demo.send_signal(signal.SIGTERM)
         _, err = demo.communicate(timeout=60)
-    finally:
-        if demo.poll() is None:
-            demo.kill()
-            demo.communicate()
     assert demo.returncode == 128 + signal.SIGTERM, err
     assert "interrupted (SIGTERM)" in err and "Traceback" not in err
     assert re.search(r"^stopped j1 at [-+]\d\.\d{5} rad, j2 at [-+]\d\.\d{5} m, j3 at .*, j4 at ", err, re.M), err
@@ -214,22 +218,15 @@ def test_sigterm_stops_a_shell_script_midway_and_says_where(state_dir: Path, tmp
     script = tmp_path / "move.txt"
     # A second of the move, then a long wait: the signal comes once the script says it waits.
     script.write_text(f"configure\nactivate\nmode j1 position\nset j1 position {target}\nwait 1\nwait 30\n")
-    shell = spawn("shell", "--script", str(script), "--config", config)
-    try:
+    with running("shell", "--script", str(script), "--config", config) as shell:
         started, seen = wait_for_line(shell.stdout, re.compile(r"^> wait 30$"), 60.0)
         assert started is not None, seen
         shell.send_signal(signal.SIGTERM)
         _, err = shell.communicate(timeout=30)
-    finally:
-        if shell.poll() is None:
-            shell.kill()
-            shell.communicate()
     assert shell.returncode == 128 + signal.SIGTERM, err
     stopped = re.search(r"^leaving the shell: stopped j1 at ([-+][0-9.]+) rad, j2 \(not homed\), j3 \(not homed\), "
                         r"j4 \(not homed\); the joints keep holding$", err, re.M)
     assert stopped is not None and "Traceback" not in err, err
     where = float(stopped.group(1))
     assert abs(where - start) > 0.3 and abs(where - target) > 0.1, "stopped midway"
-    deadline = time.monotonic() + 1.0
-    while time.monotonic() < deadline:
-        assert abs(position(Path(config)) - where) < 2e-3
+    stays(Path(config), where)
