@@ -53,7 +53,7 @@ from joint.detect.tracking import TrackingDetector  # noqa: E402
 # The arm's configured motion (host/bioscara/data/default.toml) on the motor side.
 JOINTS = {  # top speed rpm, acceleration motor deg/s^2, drive current %, stall sensitivity
     "J1": (334.0, 4011.0, 20, 6),
-    "J2": (450.0, 18000.0, 40, 12),
+    "J2": (450.0, 18000.0, 8, 12),
     "J3": (1146.0, 19251.0, 20, 6),
     "J4": (1146.0, 20626.0, 20, 6),
 }

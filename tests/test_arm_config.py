@@ -74,7 +74,7 @@ def test_default_has_the_real_joint_values() -> None:
     assert [(j.min, j.max) for j in (j1, j2, j3, j4)] == [
         (-3.04647, 3.04647), (-0.0016, 0.338), (-2.62672, 2.62672), (-3.01069, 3.01069)]
     assert [j.stall_threshold for j in (j1, j2, j3, j4)] == [6, 12, 6, 6]
-    assert [(j.hold_current, j.drive_current) for j in (j1, j2, j3, j4)] == [(20, 20), (40, 40), (20, 20), (20, 20)]
+    assert [(j.hold_current, j.drive_current) for j in (j1, j2, j3, j4)] == [(20, 20), (8, 8), (20, 20), (20, 20)]
     assert [(j.max_acceleration, j.max_velocity) for j in (j1, j2, j3, j4)] == [
         (2.0, 1.0), (0.2, 0.03), (14.0, 5.0), (30.0, 10.0)]
     homing = [j.homing for j in (j1, j2, j3, j4)]
@@ -134,7 +134,7 @@ def test_parse_config_takes_a_parsed_table() -> None:
 
 
 def test_current_out_of_range(tmp_path: Path) -> None:
-    path = edited(tmp_path, "hold_current = 40", "hold_current = 120")
+    path = edited(tmp_path, "hold_current = 8", "hold_current = 120")
     assert only_problem(path) == f"{path}: joints.j2.hold_current = 120 is out of range 0..100"
 
 
@@ -211,7 +211,7 @@ def test_nan_and_inf(tmp_path: Path, literal: str) -> None:
 
 
 def test_bool_as_number(tmp_path: Path) -> None:
-    path = edited(tmp_path, "drive_current = 40", "drive_current = true")
+    path = edited(tmp_path, "drive_current = 8", "drive_current = true")
     assert only_problem(path) == f"{path}: joints.j2.drive_current = true must be an integer 0..100, not a boolean"
 
 
@@ -276,7 +276,7 @@ def test_sim_payload_and_noise_shape_the_simulated_arm(tmp_path: Path) -> None:
     path = edited(tmp_path, "payload_kg = 0.0", "payload_kg = 1.0")
     heavy, bare = open_arm_bus(resolve_config(str(path))), open_arm_bus(resolve_config())  # in-process simulators
     # J2 carries the payload's weight through its screw: more torque on the motor (sign: down).
-    assert heavy.joint(0x12).stepper._gravity < bare.joint(0x12).stepper._gravity < 0.0
+    assert heavy.joint(0x12).stepper._load_torque_nm < bare.joint(0x12).stepper._load_torque_nm < 0.0
     path = edited(tmp_path, 'noise = "nominal"', 'noise = "loud"')
     assert only_problem(path) == f'{path}: sim.noise = "loud" must be one of "nominal", "harsh"'
 
@@ -325,12 +325,12 @@ def test_no_joints(tmp_path: Path) -> None:
 
 def test_every_problem_is_listed(tmp_path: Path) -> None:
     text = (default_text()
-            .replace("hold_current = 40", "hold_current = 120", 1)
+            .replace("hold_current = 8", "hold_current = 120", 1)
             .replace("min = -3.04647\nmax = 3.04647", "min = 3.0\nmax = 1.0", 1)
             .replace("max_velocity = 1.0", "max_velocity = 1.0\nmax_velocty = 2.0", 1)
             .replace("address = 0x13", "address = 0x12", 1)
             .replace("max = 0.338", "max = nan", 1)
-            .replace("drive_current = 40", "drive_current = true", 1)
+            .replace("drive_current = 8", "drive_current = true", 1)
             .replace("init_pos = 0.08", "", 1))
     path = write(tmp_path, text)
     lines = problems(path)

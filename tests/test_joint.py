@@ -133,3 +133,16 @@ def test_identity_and_rejection_details(config: ArmConfig, bus: SimBus) -> None:
     with pytest.raises(IncorrectStateError, match="rejected CHECKORIENTATION: a blocking command is already"):
         joint.write_register("CHECKORIENTATION", 2.0)
     assert joint.last_reject().reason == P.REJECT_BUSY
+
+
+def test_a_homing_the_joint_refuses_says_why(config: ArmConfig, bus: SimBus) -> None:
+    """A weak magnet (the simulator's fault mode): the joint refuses to home and the host's error
+    quotes its reason (HOMINGRESULT), not only "not homed"."""
+    joint = make(config, bus)
+    bus.joint(0x11).stepper.weaken_magnet()
+    jc = config.joints["j1"]
+    joint.enable(jc.drive_current, jc.hold_current)
+    with pytest.raises(NotHomedError, match="weak or missing magnet"):
+        joint.home(math.copysign(jc.homing.speed, jc.homing.direction), jc.homing.threshold, jc.homing.current,
+                   timeout=60)
+    assert not joint.is_homed()

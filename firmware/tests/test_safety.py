@@ -293,3 +293,67 @@ def test_motion_commanded_after_a_deadman_stop_turns_the_joint_again():
     rig.command("SETRPM", 30.0)
     rig.run_ms(2)
     assert any(c[0] == "set_rpm" and c[1] > 0 for c in rig.motor.calls), rig.motor.calls
+
+
+def _homing_started(rig, sensitivity=30):
+    rig.command("SETUP", 20, 20, 0, 0)
+    rig.command("HOME", 1, 10, sensitivity, 15)
+    rig.run_ms(600)  # the settle: the motor holds, the encoder is read
+
+
+def _outcome(rig):
+    return rig.read("HOMINGRESULT")[0][0]
+
+
+def test_a_homing_whose_encoder_falls_back_never_homes():
+    """An overhauling load: the encoder runs away backwards while the field drives forward, a lag
+    the tracking evidence alone would take for the stop (issue 20)."""
+    rig = Rig()
+    rig.core.homing._max_travel = 51200 * 4
+    _homing_started(rig)
+    for _ in range(400):
+        rig.motor.field += 50
+        rig.motor.angle -= 1000 / 142.2222
+        rig.motor.error = 200
+        rig.run_ms(5)
+        if not rig.core.flags & BUSY:
+            break
+    assert not rig.core.flags & BUSY and rig.core.flags & NOTHOMED
+    assert ("set_home",) not in rig.motor.calls
+    assert "travel limit" in P.HOMING_OUTCOMES[_outcome(rig)]
+
+
+def test_a_homing_pushes_at_most_its_push_time_when_the_sensitivity_is_never_reached():
+    rig = Rig()
+    _homing_started(rig, sensitivity=255)
+    start = rig.clock.ticks_ms()
+    while rig.core.flags & BUSY and rig.clock.ticks_diff(rig.clock.ticks_ms(), start) < 5000:
+        rig.motor.field += 10  # the field runs on, the encoder stays at the stop
+        rig.motor.error = 40
+        rig.run_ms(1)
+    pushed = rig.clock.ticks_diff(rig.clock.ticks_ms(), start)
+    assert rig.core.flags & NOTHOMED and not rig.core.flags & BUSY and pushed < 2000, pushed
+    assert "sensitivity was not reached" in P.HOMING_OUTCOMES[_outcome(rig)]
+
+
+def test_a_homing_with_a_noisy_encoder_at_rest_is_refused():
+    rig = Rig()
+    rig.command("SETUP", 20, 20, 0, 0)
+    rig.command("HOME", 1, 10, 30, 15)
+    for k in range(600):  # a weak magnet: the reading jumps by 1.5 degrees at rest
+        rig.motor.angle = 1.5 if k % 2 else 0.0
+        rig.run_ms(1)
+    assert not rig.core.flags & BUSY and rig.core.flags & NOTHOMED
+    assert "magnet" in P.HOMING_OUTCOMES[_outcome(rig)]
+    assert "set_rpm" not in rig.motor.names()
+
+
+def test_a_homing_whose_link_is_still_falling_is_refused():
+    rig = Rig()
+    rig.command("SETUP", 20, 20, 0, 0)
+    rig.command("HOME", 1, 10, 30, 15)
+    for _ in range(600):
+        rig.motor.angle -= 0.5  # 500 motor deg/s against the homing direction
+        rig.run_ms(1)
+    assert not rig.core.flags & BUSY and rig.core.flags & NOTHOMED
+    assert "did not come to rest" in P.HOMING_OUTCOMES[_outcome(rig)]

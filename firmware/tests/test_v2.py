@@ -280,3 +280,47 @@ def test_memory_mode_follows_micropython():
     assert events == [(16, 3), (32, 5)], "no END_WRITE for a write that only set the address"
     flat = FakeI2CTarget(0x42, mem=bytearray(range(15)), mem_addrsize=0)
     assert flat.transfer(bytes(7), 8) == bytes(range(7, 15)), "addrsize 0: write at 0, read after it"
+
+
+def _mixed_with_a_valid_crc(rig, first):
+    """A 3-byte write that, landing on `first` still in the mailbox, leaves a MOVESTEPS frame
+    whose CRC-8 (first's, unchanged) is valid: what two writes in one loop pass could apply."""
+    for b1 in range(256):
+        for b2 in range(256):
+            mixed = bytes([P.MOVESTEPS, b1, b2]) + first[3:]
+            if V.mailbox_crc(mixed, 0, rig.address) == mixed[V.M_CRC]:
+                return mixed[:3]
+    raise AssertionError("no mix with a valid CRC")
+
+
+def test_two_writes_in_one_loop_pass_are_never_applied_as_one_frame():
+    rig = V2Rig()
+    rig.to_v2()
+    rig.command("SETUP", 60, 30, 0, 0)
+    rig.motor.calls = []
+    first = rig.frame("MOVESTEPS", 100)
+    rig.xfer(first, 0)
+    rig.xfer(_mixed_with_a_valid_crc(rig, first), 0)  # before the main loop took the first
+    rig.tick()
+    flags, verdict, _, _, _ = V.decode_state(rig.address, rig.xfer(rig.frame(seq=rig.link.ack), V.STATE_SIZE))
+    rig.tick()
+    assert verdict == V.REASON_FRAME and rig.motor.calls == [] and rig.link.frame_errors == 1
+    rig.exchange(first)  # the host's retry: one write, applied once
+    rig.exchange(first)
+    assert rig.motor.calls == [("move_steps", 100)]
+
+
+def test_a_frame_whose_end_of_write_is_not_yet_counted_waits_for_it():
+    rig = V2Rig()
+    rig.to_v2()
+    rig.command("SETUP", 60, 30, 0, 0)
+    rig.motor.calls = []
+    handler = rig.switch.target._handler
+    rig.switch.target._handler = None  # the soft END_WRITE callback has not run yet
+    rig.xfer(rig.frame("MOVESTEPS", 7), 0)
+    rig.tick()
+    assert rig.motor.calls == [] and rig.link.frame_errors == 0
+    rig.switch.target._handler = handler
+    rig.link._count_write(rig.switch.target)  # now it runs
+    rig.run_ms(2)  # judged, then run by the core's next pass
+    assert rig.motor.calls == [("move_steps", 7)] and rig.link.frame_errors == 0

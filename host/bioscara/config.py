@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from .errors import ConfigError
+from .firmware.spec import protocol as P
 from .transmission import Transmission
 
 JointType = Literal["revolute", "prismatic"]
@@ -360,8 +361,9 @@ def _check_motor_side(p: _Problems, jc: JointConfig, path: str) -> bool:
                   f"{jc.reduction}; the joint accepts 0.001..1e6")
             ok = False
     span = abs(t.motor_degrees(jc.max) - t.motor_degrees(jc.min))
-    if span > 1e6:
-        p.add(f"{path}: min..max spans {span:.3g} motor degrees; the joint accepts at most 1e6")
+    move_limit = P.register("MOVETOANGLE").write[0].hi
+    if span > move_limit:
+        p.add(f"{path}: min..max spans {span:.3g} motor degrees; the joint accepts at most {move_limit:g}")
         ok = False
     return ok
 

@@ -460,7 +460,9 @@ class Joint:
         self.get_flags()
         self._homing_refused = False
         if not self.is_homed():
-            raise NotHomedError("homing ended without reaching the end stop", joint=self.name)
+            (outcome,) = self._read(P.register(P.HOMINGRESULT))
+            why = P.HOMING_OUTCOMES[outcome] if 0 < outcome < len(P.HOMING_OUTCOMES) else "the end stop was not reached"
+            raise NotHomedError(f"homing ended, not homed: {why}", joint=self.name)
         if self.homing_range_check is not None:
             self._check_homed_range(self.homing_range_check)
         self.transmission = self.transmission.with_offset(self._homing_offset)

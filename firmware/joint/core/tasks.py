@@ -5,9 +5,11 @@ A task holds BUSY while it runs; the main loop steps it when its wait is over (e
 how many milliseconds to wait) or a STOP cancelled it.
 """
 
+import struct
+
 from ..motion.fixed import ANGLE_Q, RPM_Q, muldiv, store_q
-from ..detect.homing import HOMED, OUTCOMES, RUNNING
-from ..spec.protocol import FLAG_BUSY, FLAG_NOTHOMED, FLAG_STALL, HOMINGTRAVEL
+from ..detect.homing import HOMED, RUNNING
+from ..spec.protocol import FLAG_BUSY, FLAG_NOTHOMED, FLAG_STALL, HOMING_OUTCOMES, HOMINGRESULT, HOMINGTRAVEL
 from ..detect.tracking import wrapped_diff
 from ..micro import const
 
@@ -132,13 +134,23 @@ class Tasks:
         hal.set_current(current)
         hal.set_hold_current(current)
         hal.stop(True)
-        yield _HOMING_SETTLE_MS
+        # The settle doubles as the magnet check, in its second half (the first lets a link that
+        # fell while the coils were off be caught): the encoder's jumps while the motor holds.
+        struct.pack_into("<B", self._cache[HOMINGRESULT], 0, RUNNING)  # a reply cache, as handlers.py writes them
+        clock = self.clock
+        yield _HOMING_SETTLE_MS // 2
+        start = clock.ticks_ms()
+        monitor.rest(self._encoder_usteps(), True)
+        while clock.ticks_diff(clock.ticks_ms(), start) < _HOMING_SETTLE_MS // 2 and not self._cancelled():
+            yield 1
+            monitor.rest(self._encoder_usteps(), False)
         outcome = RUNNING
-        if not self._cancelled():
+        if not self._cancelled() and monitor.noisy():
+            outcome = monitor.outcome
+        elif not self._cancelled():
             hal.set_rpm((speed if direction else -speed) << RPM_Q)
             monitor.start(1 if direction else -1, speed, sensitivity, hal.field_position(),
                           self._encoder_usteps())
-            clock = self.clock
             every = monitor.sample_ms
             start = clock.ticks_ms()
             due = clock.ticks_add(start, every)
@@ -168,7 +180,8 @@ class Tasks:
         else:
             self._set_flags(FLAG_NOTHOMED)
             self.log.warn("homing ended, not homed: %s" % ("aborted by STOP" if outcome == RUNNING
-                                                          else OUTCOMES[outcome]))
+                                                          else HOMING_OUTCOMES[outcome]))
+        struct.pack_into("<B", self._cache[HOMINGRESULT], 0, outcome)
         hal.set_current(self.drive_current)
         hal.set_hold_current(self.hold_current)
         self.track.reset()

@@ -8,7 +8,9 @@ the switch between the legacy register map and v2.
    the legacy ANGLEMOVED / GETENCODERRPM reply caches, converted from their float32 bits);
 2. swaps, in one short critical section entered only while no transaction is in progress (the
    peripheral's activity bit, checked before and inside it: interrupts held off across the end
-   of a write phase shift the rp2 transfer): takes the mailbox out and marks it empty, notes
+   of a write phase shift the rp2 transfer): takes the last frame out of the inbox, where the
+   END_WRITE handler moved the mailbox each write left (emptying it, so the next write lands on an
+   empty mailbox and two writes are never judged as one frame, whatever the loop's timing), notes
    whether the host wrote past it into the state block, and publishes the staged block. A read
    therefore always sees one whole block, and the mailbox is never taken half-written;
 3. judges the frame it took: framing, CRC, sequence number, then the legacy register's own checks
@@ -86,6 +88,7 @@ class MemLink:
             self._empty[i] = _EMPTY_CMD
         self._empty[M_SEQ] = _EMPTY_SEQ
         self._rx = bytearray(MAILBOX_SIZE)
+        self._inbox = bytearray(self._empty)  # the last write, taken from the mailbox at its END_WRITE
         self._last = bytearray(self._empty)  # the last frame accepted (retries are ignored)
         self._staged = bytearray(STATE_SIZE)
         self._published = bytearray(STATE_SIZE)
@@ -124,7 +127,13 @@ class MemLink:
             self.target = None
 
     def _count_write(self, target):
+        """END_WRITE (soft IRQ): count the write and take the mailbox it wrote, leaving it empty,
+        so the next write lands on an empty mailbox (a short one then fails its framing) and each
+        frame judged is one write, however many writes come in one main-loop pass. A frame not
+        judged yet is replaced: the newest wins, as in the mailbox before."""
         self.writes = (self.writes + 1) & COUNTER_MASK
+        self._inbox[:] = self._mailbox
+        self._mailbox[:] = self._empty
 
     # ---- main loop ----
 
@@ -160,8 +169,8 @@ class MemLink:
             self._irq_on(state)
             return -1
         self._seen_state[:] = self._state
-        self._rx[:] = self._mailbox
-        self._mailbox[:] = self._empty
+        self._rx[:] = self._inbox
+        self._inbox[:] = self._empty
         self._state[:] = self._staged
         self._irq_on(state)
         overflow = self._seen_state != self._published

@@ -278,6 +278,9 @@ _DEG = "deg (motor)"
 _DEG_S = "deg/s (motor)"
 _DEG_S2 = "deg/s^2 (motor)"
 _LIMIT = 1e6
+# Motor angles travel as Q12 degrees (fixed.py): |angle| < 2^18 degrees, about half of it kept for the
+# homing offset added to an absolute target. A move beyond is refused (ERROR), never clamped.
+_ANGLE_LIMIT = 131071.0
 _ZERO_ONLY = Field("reserved", U8, "", 0, 0)
 
 
@@ -329,6 +332,7 @@ LASTERROR = const(0x31)
 PROTOCOL = const(0x32)
 HOMINGTRAVEL = const(0x33)
 WATCHDOG = const(0x34)
+HOMINGRESULT = const(0x35)
 WATCHDOG_MAX_MS = const(5000)
 
 BRAKE_FREEWHEEL = const(0)
@@ -348,9 +352,9 @@ REGISTERS = (
              doc="extension: ramp-generator speed (the original answered with flags only)"),
     Register(MOVESTEPS, "MOVESTEPS", write=(Field("steps", I32, "microsteps (1/256 step)"),),
              doc="relative move in the stepper library's step unit"),
-    Register(MOVEANGLE, "MOVEANGLE", write=_f32("angle", _DEG),
+    Register(MOVEANGLE, "MOVEANGLE", write=_f32("angle", _DEG, 0.0, _ANGLE_LIMIT),
              doc="extension: relative move"),
-    Register(MOVETOANGLE, "MOVETOANGLE", write=_f32("angle", _DEG),
+    Register(MOVETOANGLE, "MOVETOANGLE", write=_f32("angle", _DEG, 0.0, _ANGLE_LIMIT),
              doc="absolute move in the encoder frame; ignored while stalled or not enabled"),
     _unsupported(GETMOTORSTATE, "GETMOTORSTATE"),
     _unsupported(RUNCOTINOUS, "RUNCOTINOUS"),
@@ -412,6 +416,19 @@ REGISTERS = (
                  "homing, orientation check); 0 (boot): the original's, velocity only"),
     Register(HOMINGTRAVEL, "HOMINGTRAVEL", read=_f32("travel", _DEG),
              doc="extension: encoder travel of the last successful homing, start to end stop"),
+    Register(HOMINGRESULT, "HOMINGRESULT", read=(Field("outcome", U8),),
+             doc="extension: how the last HOME ended, an index of HOMING_OUTCOMES"),
+)
+
+# How a HOME ends (HOMINGRESULT; the joint's console says the same).
+HOMING_OUTCOMES = (
+    "running",
+    "homed",
+    "travel limit reached without finding the end stop",
+    "timeout without finding the end stop",
+    "end stop found, but the sensitivity was not reached within the push time: lower it",
+    "encoder too noisy at rest (weak or missing magnet): homing refused",
+    "the joint did not come to rest before homing (a link falling under its load): homing refused",
 )
 
 BY_ADDR = [None] * 256
