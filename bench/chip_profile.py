@@ -269,10 +269,10 @@ def main() -> int:
         return 0
     ms = int(sys.argv[1]) if len(sys.argv) > 1 else 3000
     mode = sys.argv[2] if len(sys.argv) > 2 else "both"
-    from bioscara import flash
+    from bioscara import firmware_flash
     from chip import fsimage
     with tempfile.TemporaryDirectory() as directory:
-        compile_mpy, _ = flash._compiler(fsimage.STOCK_PICO)
+        compile_mpy, _ = firmware_flash._compiler(fsimage.STOCK_PICO)
         files = dict(fsimage.joint_files(chip_bench.JOINT))
         files["/prof.py"] = PROFILER.format(n=len(TARGETS) + 1).encode()
         image = pathlib.Path(directory) / "prof.img"

@@ -151,8 +151,8 @@ def protocol_layouts() -> dict[str, bytes]:
 # hold it. A path that no longer exists fails `make docs`: move the name here with the module.
 ARCHITECTURE = {
     "host": [
-        ("bioscara CLI, console, panel, demo", ["host/bioscara/cli.py", "host/bioscara/shell.py",
-                                                "host/bioscara/panel", "host/bioscara/demo.py"]),
+        ("bioscara CLI, console, panel, demo", ["host/bioscara/cli.py", "host/bioscara/shell_interpreter.py",
+                                                "host/bioscara/panel", "host/bioscara/demo_scenario.py"]),
         ("Arm: lifecycle, command modes, homing", ["host/bioscara/arm.py", "host/bioscara/motion.py"]),
         ("Communicator: fixed-rate read/write cycle", ["host/bioscara/communicator.py"]),
         ("Joint, Gripper: units, limits, errors", ["host/bioscara/joint.py", "host/bioscara/gripper.py",

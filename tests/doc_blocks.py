@@ -63,9 +63,13 @@ def steps(block: str) -> list[tuple[str, list[str]]]:
     return result
 
 
+BOX = str.maketrans("", "", "│┃┏┓┗┛━─┡┩╇┳┻╋┼┌┐└┘├┤")  # the docs show a terminal; piped, tables have no box
+
+
 def pattern(expected: str) -> re.Pattern[str]:
-    """`…` matches anything (with the spaces around it); a space matches any run of spaces (table padding)."""
-    parts = [re.escape(part.strip()).replace("\\ ", r"\s+") for part in expected.split("…")]
+    """`…` matches anything (with the spaces around it); a space matches any run of spaces (table
+    padding); box-drawing characters are left out (a table the docs show boxed is plain when piped)."""
+    parts = [re.escape(part.strip()).replace("\\ ", r"\s+") for part in expected.translate(BOX).split("…")]
     return re.compile(r"\s*.*?\s*".join(parts))
 
 

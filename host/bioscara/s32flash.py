@@ -7,7 +7,7 @@ at boot, the board's linker script keeps code out). One download writes both: th
 with erased bytes (0xFF) up to CONFIG_ADDRESS, then the configuration and a 0xFF terminator. The
 configuration is then read back from flash with dfu-util's upload and compared (the joint's name
 and address are in it), and the upload's `leave` starts the new firmware. With `--bus` the CLI
-then asks the running joint for its identity over I2C (flash.check_identity).
+then asks the running joint for its identity over I2C (firmware_flash.check_identity).
 """
 
 from __future__ import annotations

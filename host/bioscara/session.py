@@ -10,6 +10,7 @@ from typing import Any
 
 from rich.console import Console
 
+from . import report
 from .arm import Arm, make_joint
 from .bus import Bus
 from .config import ArmConfig, resolve_config
@@ -32,6 +33,7 @@ class Session:
         self._owns_bus = bus is None
         self._arm: Arm | None = None
         self._opened: list[Arm | Joint] = []  # released at close()
+        self.arms: list[Arm] = []  # stopped when a signal ends the command (interruption.stop_arms)
 
     @property
     def config(self) -> ArmConfig:
@@ -53,7 +55,14 @@ class Session:
 
     def _keep(self, what: Any) -> Any:
         self._opened.append(what)
+        if isinstance(what, Arm):
+            self.arms.append(what)
         return what
+
+    def drives(self, arm: Arm) -> Arm:
+        """An arm the command opened itself (shell, panel): stopped like the session's own on a signal."""
+        self.arms.append(arm)
+        return arm
 
     @property
     def protocol(self) -> str:
@@ -74,7 +83,7 @@ class Session:
         if self.json:
             sys.stdout.write(json.dumps(data, default=str) + "\n")
         else:
-            self.console.print(human if human is not None else data)
+            self.console.print(report.for_terminal(human if human is not None else data, self.console.is_terminal))
 
     def err(self, message: str) -> None:
         Console(stderr=True, soft_wrap=True).print(message, style="red", markup=False, highlight=False)
