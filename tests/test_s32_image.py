@@ -9,7 +9,7 @@ import subprocess
 
 import pytest
 
-from bioscara import flash, s32flash
+from bioscara import firmware_flash, s32flash
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 BUILD = ROOT / "build" / "s32"
@@ -34,6 +34,6 @@ def test_the_image_froze_what_the_s32_manifest_declares():
     out = subprocess.run(["arm-none-eabi-nm", str(build / "firmware.elf")], capture_output=True, text=True,
                          check=True).stdout
     frozen = {line.split()[-1][len("frozen_module_"):] for line in out.splitlines() if " frozen_module_" in line}
-    expected = {"main"} | {"joint_" + name[:-3].replace("/", "_") for name in flash.board_files("s32")
+    expected = {"main"} | {"joint_" + name[:-3].replace("/", "_") for name in firmware_flash.board_files("s32")
                            if name != "s32/main.py"}
     assert frozen == expected

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .firmware.config import schema as firmware_config
-from .flash import joint_config
+from .firmware_flash import joint_config
 from .mpboard import FlashError
 from .errors import ConfigError
 
