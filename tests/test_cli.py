@@ -239,8 +239,8 @@ def test_scan_is_a_bring_up_check(capsys: pytest.CaptureFixture[str], config, tm
         entries[0x13]["problems"][0]
     assert "misaddressed: j3 (by IDENTITY) answers here" in entries[0x40]["problems"][0]
     from pathlib import Path
-    from bioscara.config import load_config
-    text = Path(load_config().source).read_text()
+    from bioscara.config import read_config
+    text = Path(read_config().source).read_text()
     three = tmp_path / "three.toml"
     three.write_text(text[:text.index("[joints.j4]")] + text[text.index("[gripper]"):].replace("j4 = 2.95\n", ""))
     code, out, _ = run(capsys, "scan", "--json", "--config", str(three), bus=_bus_with(config))
@@ -319,11 +319,11 @@ def test_user_config_file_and_bus_environment_variable(capsys: pytest.CaptureFix
     import os
     from pathlib import Path
 
-    from bioscara.config import load_config, user_config_path
+    from bioscara.config import read_config, user_config_path
     path = user_config_path()
     assert path == Path(os.environ["XDG_CONFIG_HOME"]) / "bioscara" / "arm.toml"
     path.parent.mkdir(parents=True)
-    path.write_text(Path(load_config().source).read_text().replace("address = 0x14", "address = 0x24"))
+    path.write_text(Path(read_config().source).read_text().replace("address = 0x14", "address = 0x24"))
     code, out, _ = run(capsys, "info", "j4", "--json")
     assert code == 0 and json.loads(out)["address"] == 0x24, "the user's configuration was used"
     monkeypatch.setenv("BIOSCARA_BUS", "smbus:/dev/i2c-77")

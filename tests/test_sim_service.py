@@ -25,13 +25,13 @@ import pytest
 
 from bioscara import cli, sim_service
 from bioscara.arm import make_joint
-from bioscara.config import load_config
+from bioscara.config import read_config
 from bioscara.errors import CommError, ConfigError
 from bioscara.hardware import sim_joint_specs
 from bioscara.sim_server import SimServer
 from bioscara.sim_service import ServiceBus
 
-SPECS = sim_joint_specs(load_config())
+SPECS = sim_joint_specs(read_config())
 IDLE_EXIT_S = 60.0  # a run that is killed before its teardown leaves no service for longer
 
 
@@ -57,7 +57,7 @@ def wait_until(condition, timeout: float = 10.0) -> bool:  # type: ignore[no-unt
 
 def quick_config(tmp_path: Path) -> Path:
     """The shipped arm with every joint starting just inside the end stop it homes into (real time: short)."""
-    text = (Path(load_config().source)).read_text()
+    text = (Path(read_config().source)).read_text()
     head, _, _ = text.partition("[sim.start]")
     path = tmp_path / "arm.toml"
     path.write_text(head + "[sim.start]\nj1 = -3.03\nj2 = 0.3375\nj3 = 2.61\nj4 = 2.99\n")
@@ -189,7 +189,7 @@ def test_an_unused_arm_ends_by_itself_a_client_or_a_moving_joint_keeps_it(state_
     assert sim_service.start(state_dir, SPECS, idle_exit_s=1.0)
     socket_file = state_dir / "sim.sock"
     bus = ServiceBus(SPECS, state_dir, autostart=False)
-    joint = make_joint(load_config().joints["j1"], bus)
+    joint = make_joint(read_config().joints["j1"], bus)
     joint.init()
     time.sleep(2.0)  # twice the idle exit
     assert socket_file.exists(), "a connected client keeps it"

@@ -55,6 +55,7 @@ def init(core, hal, clock, cfg, log, critical):
     # stop's deepest point: the host's angle is the encoder's plus this.
     core.zero_offset = 0
     core._safe_pending = False
+    core._coasting = False  # the ramp after commanded motion, until the motor first stands
     # The host's acceleration limits, restored after a deadman stop, and the deadman's
     # quick-stop deceleration: full steps/s^2 Q4, converted here, once.
     core.max_acceleration = core.max_deceleration = to_q(cfg.boot.max_acceleration, STEPS_Q)

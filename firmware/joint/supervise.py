@@ -83,14 +83,19 @@ class Supervisor:
             track.reset()
 
     def _motion_active(self):
-        """What the deadman guards: in watchdog mode every motion; at boot the velocity setpoint."""
+        """What the deadman guards: in watchdog mode every motion the host commanded, and the ramp
+        after it until the motor first stands; at boot the velocity setpoint. A joint holding its
+        position corrects small errors (its driver ramp turns for a sample now and then): that is
+        not motion, so a quiet host never gets a joint disabled that holds still."""
         if not self.watchdog_ms:
             return self.qd_set != 0
-        if self.qd_set != 0 or self.positioning:
+        if self.qd_set != 0 or self.positioning or (self._task is not None and self.task_name != "boot"):
+            self._coasting = True
             return True
-        if self._task is not None and self.task_name != "boot":
+        if self._coasting and self.hal.driver_rpm() != 0:
             return True
-        return self.hal.driver_rpm() != 0
+        self._coasting = False
+        return False
 
     @micropython.native
     def _check_deadman(self):

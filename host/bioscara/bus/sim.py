@@ -80,6 +80,9 @@ class SimBus(Bus):
     def describe(self) -> str:
         return "sim:" + ("realtime" if self.realtime else "virtual")
 
+    def arm_lock_path(self) -> None:
+        return None  # these joints live in this process: no other program reaches them
+
     def joint(self, address: int) -> SimJoint:
         """The simulated joint at `address` (to inject collisions, reboot it, look at its rotor)."""
         joint = self.sim.joint_at(address)

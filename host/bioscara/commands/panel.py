@@ -13,7 +13,7 @@ from ..session import Session
 
 NAME = "panel"
 HELP = "the arm's control panel (Textual): lifecycle, homing, jog, STOP, live plot; --web serves it to a browser"
-USES = ("bus", "protocol", "config")  # a full-screen panel: no --json
+USES = ("bus", "protocol", "config", "take_over")  # a full-screen panel: no --json
 LOCAL = "127.0.0.1"
 
 

@@ -27,7 +27,7 @@ from .options import count, positive
 
 NAME = "shell"
 HELP = "interactive console: communicator, arm lifecycle, command modes, registers (`help` inside)"
-USES = ("bus", "protocol", "config")
+USES = ("bus", "protocol", "config", "take_over")
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--script", metavar="FILE", help="run FILE's commands and exit; non-zero at the first "

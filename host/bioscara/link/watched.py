@@ -1,0 +1,76 @@
+"""A joint read by a program that does not command it (a monitor, `info`, a plot beside a
+commanding program): see commander.py for the rules that keep it from disturbing the commander."""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+from ..bus.base import Bus
+from ..commander import Commander, Holder
+from ..errors import CommError, IncorrectStateError
+from ..firmware import protocol as P
+from .base import Command, Link, LinkState
+from .legacy import LegacyLink
+
+FRESH_S = 0.005  # one fetch of the commander's state serves every joint read within this long
+
+
+class WatchedLink(Link):
+    """Reads in the legacy map while no other program commands the bus (under the watchers'
+    shared lock); else the commander's published copy of the registers it read: PING (flags),
+    ANGLEMOVED, GETENCODERRPM, HOMEOFFSET and IDENTITY. Never commands."""
+
+    name = "watched"
+
+    def __init__(self, bus: Bus, address: int, joint: str, commander: Commander) -> None:
+        super().__init__(bus, address, joint)
+        self.legacy = LegacyLink(bus, address, joint)
+        self.commander = commander
+        self.holder: Holder | None = None  # the commander the last read went through, if any
+        self._fetched: tuple[float, dict[str, Any]] | None = None
+
+    def read(self, reg: P.Register) -> tuple[tuple, int]:
+        with self.commander.watch() as holder:
+            self.holder = holder
+            if holder is None:
+                return self.legacy.read(reg)
+            return self._published_read(holder, reg)
+
+    def published(self, holder: Holder) -> dict[str, Any]:
+        """This joint's entry in the commander's published state (CommError if it has none)."""
+        now = time.monotonic()
+        if self._fetched is None or now - self._fetched[0] > FRESH_S:
+            self._fetched = (now, self.commander.published(holder))
+        joints = self._fetched[1].get("joints", {})
+        entry = joints.get(self.joint) or next((j for j in joints.values() if j.get("address") == self.address), None)
+        if entry is None:
+            raise CommError(f"{holder.describe()} commands the arm but not this joint, and reads it not",
+                            joint=self.joint)
+        return dict(entry)
+
+    def _published_read(self, holder: Holder, reg: P.Register) -> tuple[tuple, int]:
+        entry = self.published(holder)
+        flags = int(entry["flags"])
+        values: dict[int, Any] = {P.PING: (P.ACK,), P.ANGLEMOVED: (entry["position_deg"],),
+                                  P.GETENCODERRPM: (entry["velocity_rpm"],), P.HOMEOFFSET: (entry["offset"],)}
+        if entry.get("identity"):
+            values[P.IDENTITY] = tuple(entry["identity"])
+        if reg.addr not in values:
+            raise IncorrectStateError(f"{reg.name} cannot be read while {holder.describe()} commands the arm",
+                                      joint=self.joint)
+        return values[reg.addr], flags
+
+    def command(self, command: Command) -> int:
+        raise IncorrectStateError(f"{command.name}: this program only watches the arm", joint=self.joint)
+
+    def cycle(self, setpoint: Command | None) -> LinkState:
+        """Position, velocity and flags from one source: the joint, or the commander's copy."""
+        if setpoint is not None:
+            self.command(setpoint)
+        with self.commander.watch() as holder:
+            self.holder = holder
+            if holder is None:
+                return self.legacy.cycle(None)
+            entry = self.published(holder)
+            return LinkState(int(entry["flags"]), float(entry["position_deg"]), float(entry["velocity_rpm"]))
