@@ -110,17 +110,16 @@ def test_info_reports_identity_and_flags(capsys: pytest.CaptureFixture[str]) -> 
     assert "{" not in out and "e-05" not in out, "no Python reprs"
 
 
-def test_scan_and_info_show_the_protocol_and_protocol_forces_one(capsys: pytest.CaptureFixture[str],
-                                                                 bus: SimBus) -> None:
+def test_scan_and_info_only_read_they_switch_no_protocol(capsys: pytest.CaptureFixture[str], bus: SimBus) -> None:
     code, out, _ = run(capsys, "scan", "--json", bus=bus)
     assert code == 0 and all(d["protocols"] == "legacy+v2" for d in json.loads(out))
     code, out, _ = run(capsys, "info", "j2", "--json", bus=bus)
     info = json.loads(out)
-    assert code == 0 and info["protocol"] == "v2" and info["v2_link"]["bad_states"] == 0
-    assert bus.joint(0x12).protocol == 1, "info returns the joint to the legacy map when done"
-    code, out, _ = run(capsys, "info", "j2", "--json", "--protocol", "legacy", bus=bus)
-    assert code == 0 and json.loads(out)["protocol"] == "legacy" and "v2_link" not in json.loads(out)
-    code, _, err = run(capsys, "info", "j2", "--protocol", "v3", bus=bus)
+    assert code == 0 and info["commanded_by"] is None and info["spec_matches"]
+    assert bus.joint(0x12).protocol == 1, "info reads the legacy map and switches nothing"
+    code, _, err = run(capsys, "info", "j2", "--protocol", "v2", bus=bus)
+    assert code == 2 and "unrecognized arguments: --protocol" in err, "a reading command has no protocol to choose"
+    code, _, err = run(capsys, "move", "j2", "0.1", "--protocol", "v3", bus=bus)
     assert code == 2 and "invalid choice: 'v3'" in err
 
 

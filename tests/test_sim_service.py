@@ -87,12 +87,11 @@ def test_state_is_kept_between_commands_and_clients_share_the_arm(
     assert cli.main(["home", "j3", "--config", config]) == 0
     assert cli.main(["move", "j3", "2.0", "--config", config]) == 0, "the next command finds j3 homed"
     record = tmp_path / "run.csv"
-    # Two processes on one joint at once: the legacy protocol (v2 keeps one sequence per host).
+    # Two processes on one joint at once, each in its default protocol: the monitor only watches.
     monitor = bioscara("monitor", "--config", config, "--rate", "20", "--duration", "3", "--record",
-                       str(record), "--json", "--protocol", "legacy")
+                       str(record), "--json")
     assert wait_until(lambda: record.exists() and len(record.read_text().splitlines()) > 3)
-    assert cli.main(["move", "j3", "1.0", "--config", config, "--protocol", "legacy"]) == 0, \
-        "a move beside the monitor"
+    assert cli.main(["move", "j3", "1.0", "--config", config]) == 0, "a move (v2) beside the monitor"
     out, err = monitor.communicate(timeout=30)
     assert monitor.returncode == 0, err
     assert json.loads(out.splitlines()[-1])["summary"]["errors"] == 0

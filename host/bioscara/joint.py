@@ -134,6 +134,10 @@ class Joint:
         self.velocity_rpm = math.nan
         self.state_time = -math.inf
         self.cached_identity: Identity | None = None
+        # Why the joint disabled itself, when it did so without this host asking (None: it did
+        # not): its deadman (with this host's silence before), a stall, or a reboot.
+        self.disabled_cause: str | None = None
+        self._disabling = False  # this host is disabling the joint: NOTENABLED is its own doing
 
     def __repr__(self) -> str:
         return f"Joint({self.name!r}, 0x{self.address:02x}, flags={P.describe_flags(self.flags)})"
@@ -342,13 +346,16 @@ class Joint:
 
     def enable(self, drive_current: int, hold_current: int) -> None:
         """Energize with currents in % (0..100); also turns stall detection off, as SETUP does."""
+        self._disabling = False
         self._command(P.SETUP, drive_current, hold_current, 0, 0)
+        self.disabled_cause = None
         if not self.is_enabled():
             raise NotEnabledError("still not enabled after SETUP", joint=self.name)
 
     def disable(self) -> None:
         """Stop, zero both currents and freewheel. Tries every step; raises the first failure."""
         first: BioscaraError | None = None
+        self._disabling = True
         for step in (self.stop, lambda: self.set_hold_current(0), lambda: self.set_drive_current(0),
                      lambda: self.set_brake_mode(BrakeMode.FREEWHEEL)):
             try:
@@ -515,7 +522,8 @@ class Joint:
         self.get_flags()
         self._homing_refused = False
         if not self.is_homed():
-            raise NotHomedError("homing ended without reaching the end stop", joint=self.name)
+            why = f": {self.disabled_cause}" if self.disabled_cause else ""
+            raise NotHomedError(f"homing ended without reaching the end stop{why}", joint=self.name)
         if self.homing_range_check is not None:
             self._check_homed_range(self.homing_range_check)
         self.transmission = self.transmission.with_offset(self._homing_offset)
@@ -601,7 +609,8 @@ class Joint:
         self._require_open()
         self._fresh_flags()
         if not self.is_enabled():
-            raise NotEnabledError("not enabled", joint=self.name)
+            why = f" ({self.disabled_cause})" if self.disabled_cause else ""
+            raise NotEnabledError(f"not enabled{why}", joint=self.name)
 
     def _require_enabled_and_homed(self) -> None:
         self._require_enabled()
@@ -613,8 +622,29 @@ class Joint:
             raise StalledError("stall detected: the motor stopped", joint=self.name)
 
     def _take_flags(self, flags: int) -> None:
+        now = self.bus.monotonic()
+        was = self.flags
         self.flags = flags & CACHED_FLAGS
-        self.flags_time = self.bus.monotonic()
+        if flags & P.FLAG_NOTENABLED and not was & P.FLAG_NOTENABLED and not self._disabling and not self.watch:
+            self.disabled_cause = self._why_disabled(was, flags, now - self.flags_time)
+            log.warning("joint %s: %s", self.name, self.disabled_cause)
+        self.flags_time = now
+
+    def _why_disabled(self, was: int, flags: int, silence_s: float) -> str:
+        """Why an enabled joint is found disabled without this host asking: the joint's own
+        flags tell a stall or a reboot; otherwise its deadman, with how long this host had been
+        silent (`silence_s`: since the previous answer) against the joint's timeout."""
+        if flags & P.FLAG_STALL:
+            return "the joint disabled itself: stall detection stopped it"
+        if flags & P.FLAG_NOTHOMED and not was & P.FLAG_NOTHOMED:
+            return "the joint rebooted (it lost its homing)"
+        timeout_ms = self.watchdog_ms or 50
+        silent_ms = silence_s * 1000.0
+        if silent_ms >= timeout_ms:
+            return (f"the joint disabled itself: its deadman, after {silent_ms:.0f} ms without traffic from "
+                    f"this host (its timeout is {timeout_ms} ms)")
+        return (f"the joint disabled itself (its deadman or another program; this host's traffic was "
+                f"{silent_ms:.0f} ms apart, its timeout {timeout_ms} ms)")
 
     def _take_state(self, flags: int, position_deg: float, velocity_rpm: float) -> None:
         self._take_flags(flags)
@@ -686,7 +716,8 @@ class Joint:
         if exc.reason == V.REASON_DISABLED and exc.flags & P.FLAG_STALL:
             return StalledError(exc.detail, joint=self.name)
         if exc.reason == V.REASON_DISABLED:
-            return NotEnabledError(exc.detail, joint=self.name)
+            why = f" ({self.disabled_cause})" if self.disabled_cause else ""
+            return NotEnabledError(exc.detail + why, joint=self.name)
         if exc.reason in (V.REASON_VALUE, V.REASON_COMMAND):
             return InvalidArgumentError(exc.detail, joint=self.name)
         return BioscaraError(exc.detail, joint=self.name)

@@ -8,7 +8,7 @@ from typing import Any
 
 from ..bus.base import Bus
 from ..commander import Commander, Holder
-from ..errors import CommError, IncorrectStateError
+from ..errors import IncorrectStateError
 from ..firmware import protocol as P
 from .base import Command, Link, LinkState
 from .legacy import LegacyLink
@@ -18,8 +18,9 @@ FRESH_S = 0.005  # one fetch of the commander's state serves every joint read wi
 
 class WatchedLink(Link):
     """Reads in the legacy map while no other program commands the bus (under the watchers'
-    shared lock); else the commander's published copy of the registers it read: PING (flags),
-    ANGLEMOVED, GETENCODERRPM, HOMEOFFSET and IDENTITY. Never commands."""
+    shared lock), or while the commander has not opened this joint; else the commander's
+    published copy of the registers it read: PING (flags), ANGLEMOVED, GETENCODERRPM, HOMEOFFSET
+    and IDENTITY. Never commands."""
 
     name = "watched"
 
@@ -33,24 +34,23 @@ class WatchedLink(Link):
     def read(self, reg: P.Register) -> tuple[tuple, int]:
         with self.commander.watch() as holder:
             self.holder = holder
-            if holder is None:
+            entry = None if holder is None else self.published(holder)
+            if entry is None:
                 return self.legacy.read(reg)
-            return self._published_read(holder, reg)
+            return self._published_read(holder, entry, reg)
 
-    def published(self, holder: Holder) -> dict[str, Any]:
-        """This joint's entry in the commander's published state (CommError if it has none)."""
+    def published(self, holder: Holder) -> dict[str, Any] | None:
+        """This joint's entry in the commander's published state; None if the commander has not
+        opened this joint (it is read directly then: the commander does not talk to it)."""
         now = time.monotonic()
         if self._fetched is None or now - self._fetched[0] > FRESH_S:
             self._fetched = (now, self.commander.published(holder))
-        joints = self._fetched[1].get("joints", {})
-        entry = joints.get(self.joint) or next((j for j in joints.values() if j.get("address") == self.address), None)
-        if entry is None:
-            raise CommError(f"{holder.describe()} commands the arm but not this joint, and reads it not",
-                            joint=self.joint)
-        return dict(entry)
+        for entry in self._fetched[1].get("joints", {}).values():
+            if entry.get("address") == self.address:
+                return dict(entry)
+        return None
 
-    def _published_read(self, holder: Holder, reg: P.Register) -> tuple[tuple, int]:
-        entry = self.published(holder)
+    def _published_read(self, holder: Holder, entry: dict[str, Any], reg: P.Register) -> tuple[tuple, int]:
         flags = int(entry["flags"])
         values: dict[int, Any] = {P.PING: (P.ACK,), P.ANGLEMOVED: (entry["position_deg"],),
                                   P.GETENCODERRPM: (entry["velocity_rpm"],), P.HOMEOFFSET: (entry["offset"],)}
@@ -70,7 +70,7 @@ class WatchedLink(Link):
             self.command(setpoint)
         with self.commander.watch() as holder:
             self.holder = holder
-            if holder is None:
+            entry = None if holder is None else self.published(holder)
+            if entry is None:
                 return self.legacy.cycle(None)
-            entry = self.published(holder)
             return LinkState(int(entry["flags"]), float(entry["position_deg"]), float(entry["velocity_rpm"]))
