@@ -67,7 +67,8 @@ class Holder:
 def program_name() -> str:
     """This process's command line as a user typed it (`bioscara move j1 2`)."""
     argv = list(sys.argv) or ["python"]
-    argv[0] = os.path.basename(argv[0])
+    # `python -m bioscara.cli` runs the same command as the `bioscara` script
+    argv[0] = "bioscara" if argv[0].endswith(os.path.join("bioscara", "cli.py")) else os.path.basename(argv[0])
     return " ".join(argv)[:200]
 
 

@@ -138,6 +138,8 @@ class Joint:
         # not): its deadman (with this host's silence before), a stall, or a reboot.
         self.disabled_cause: str | None = None
         self._disabling = False  # this host is disabling the joint: NOTENABLED is its own doing
+        self._offset_stale = False  # a watched joint was homed (by its commander): read the new offset
+        self._commanded_by: object = None  # a watched joint's commander at the last cycle
 
     def __repr__(self) -> str:
         return f"Joint({self.name!r}, 0x{self.address:02x}, flags={P.describe_flags(self.flags)})"
@@ -410,7 +412,14 @@ class Joint:
         (degrees,) = self._read(P.register(P.ANGLEMOVED))
         if not self.is_homed():
             raise NotHomedError("position is meaningless before homing", joint=self.name)
+        self._follow_homing()
         return self.transmission.position(degrees)
+
+    def _follow_homing(self) -> None:
+        """A watched joint that another program homed: take the offset that homing stored."""
+        if self._offset_stale:
+            self._offset_stale = False
+            self.transmission = self.transmission.with_offset(self.get_homing_offset())
 
     @property
     def limit_slack(self) -> float:
@@ -466,6 +475,15 @@ class Joint:
         self._take_state(state.flags, state.position_deg, state.velocity_rpm)
         if setpoint is not None:
             self._check_stall(state.flags)
+        if self.watch:
+            # While another program commands, its offset may change (it homes): take it with every
+            # state it publishes, and once more from the joint after it has gone.
+            holder = getattr(self.link, "holder", None)
+            if holder is not None or self._commanded_by is not None:
+                self._offset_stale = True
+            self._commanded_by = holder
+        if self.is_homed():
+            self._follow_homing()
         position = self.transmission.position(state.position_deg) if self.is_homed() else math.nan
         return position, self.transmission.velocity(state.velocity_rpm)
 
@@ -625,6 +643,8 @@ class Joint:
         now = self.bus.monotonic()
         was = self.flags
         self.flags = flags & CACHED_FLAGS
+        if self.watch and was & P.FLAG_NOTHOMED and not flags & P.FLAG_NOTHOMED:
+            self._offset_stale = True
         if flags & P.FLAG_NOTENABLED and not was & P.FLAG_NOTENABLED and not self._disabling and not self.watch:
             self.disabled_cause = self._why_disabled(was, flags, now - self.flags_time)
             log.warning("joint %s: %s", self.name, self.disabled_cause)

@@ -64,12 +64,15 @@ class WatchedLink(Link):
     def command(self, command: Command) -> int:
         raise IncorrectStateError(f"{command.name}: this program only watches the arm", joint=self.joint)
 
-    def cycle(self, setpoint: Command | None) -> LinkState:
-        """Position, velocity and flags from one source: the joint, or the commander's copy."""
+    def cycle(self, setpoint: Command | None) -> LinkState | None:
+        """Position, velocity and flags from one source: the joint, or the commander's copy
+        (None while a commander is starting and publishes nothing yet: the last state stands)."""
         if setpoint is not None:
             self.command(setpoint)
         with self.commander.watch() as holder:
             self.holder = holder
+            if holder is not None and not holder.socket:
+                return None
             entry = None if holder is None else self.published(holder)
             if entry is None:
                 return self.legacy.cycle(None)
