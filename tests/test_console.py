@@ -10,7 +10,7 @@ from collections.abc import Callable, Iterator
 
 import pytest
 
-from bioscara.bus import open_bus
+from bioscara.transports import open_bus
 from bioscara.cli import main
 from bioscara.config import read_config
 from bioscara.console import CSV_HEADER, JointConsole, plot

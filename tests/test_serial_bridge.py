@@ -20,7 +20,7 @@ from dataclasses import replace
 import pytest
 
 from bioscara.arm import make_joint
-from bioscara.bus import open_bus
+from bioscara.transports import open_bus
 from bioscara.bus.serial import SerialBus
 from bioscara.config import ArmConfig, read_config
 from bioscara.errors import CommError, ConfigError

@@ -11,7 +11,7 @@ from dataclasses import replace
 import pytest
 from smbus2 import i2c_msg
 
-from bioscara.bus import open_bus
+from bioscara.transports import open_bus
 from bioscara.bus.base import Bus
 from bioscara.bus.blinka import BlinkaBus
 from bioscara.bus.sim import SimBus, SimJointSpec

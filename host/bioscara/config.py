@@ -21,11 +21,11 @@ from typing import Any, Literal
 
 from .errors import ConfigError
 from .transmission import Transmission
+from .transports import schemes
 
 JointType = Literal["revolute", "prismatic"]
 
 JOINT_NAMES = ("j1", "j2", "j3", "j4")
-BUS_SCHEMES = ("smbus:", "blinka:", "serial:", "sim:")
 
 # Default simulated start: this far inside the end stop that homing runs into.
 _SIM_START_MARGIN = {"revolute": 0.05, "prismatic": 0.005}  # rad, m
@@ -147,8 +147,8 @@ def load_config(path: str | os.PathLike[str] | None = None, bus: str | None = No
     config = read_config(path)
     url = bus or os.environ.get(BUS_ENV, "").strip() or None
     if url is not None:
-        if not bus and not url.startswith(BUS_SCHEMES):
-            raise ConfigError(f"unknown bus {url!r} in ${BUS_ENV}; use one of {', '.join(BUS_SCHEMES)}")
+        if not bus and not url.startswith(schemes()):
+            raise ConfigError(f"unknown bus {url!r} in ${BUS_ENV}; use one of {', '.join(schemes())}")
         config = replace(config, bus=replace(config.bus, url=url, use_mock_hardware=False))
     idle = os.environ.get(IDLE_EXIT_ENV, "").strip()
     if idle:
@@ -311,8 +311,8 @@ _SIM_KEYS = {
 def _bus(p: _Problems, top: dict[str, Any]) -> BusConfig:
     table = _section(p, _table(p, top, "bus"), "bus", set(_BUS_KEYS))
     values = _read(p, table, "bus", _BUS_KEYS)
-    if "url" in values and not values["url"].startswith(BUS_SCHEMES):
-        p.add(f"bus.url = {_show(values['url'])} must start with one of {', '.join(BUS_SCHEMES)}")
+    if "url" in values and not values["url"].startswith(schemes()):
+        p.add(f"bus.url = {_show(values['url'])} must start with one of {', '.join(schemes())}")
     return BusConfig(**values)
 
 

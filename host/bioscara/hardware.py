@@ -7,7 +7,8 @@ from __future__ import annotations
 from typing import Any, Callable
 
 from .arm import Arm
-from .bus import Bus, open_bus
+from .bus import Bus
+from .transports import open_bus
 from .bus.sim import SimJointSpec
 from .config import ArmConfig, load_config
 from .gripper import BaseGripper, Gripper, MockGripper

@@ -677,7 +677,8 @@ class Joint:
         return {self.name: {
             "address": self.address, "protocol": self.protocol, "flags": self.flags,
             "position_deg": self.position_deg, "velocity_rpm": self.velocity_rpm,
-            "offset": self.transmission.offset, "age_s": self.bus.monotonic() - self.state_time,
+            "offset": self.transmission.offset, "read": math.isfinite(self.state_time),
+            "age_s": self.bus.monotonic() - self.state_time if math.isfinite(self.state_time) else None,
             "identity": None if identity is None else [identity.protocol, *identity.firmware,
                                                        identity.joint_id, identity.spec_hash]}}
 

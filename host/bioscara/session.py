@@ -58,7 +58,15 @@ class Session:
 
     def watched_arm(self) -> Arm:
         """The whole arm, only read: beside any program that commands it (commander.py)."""
+        self._watching()
         return self._keep(open_arm(self.config, self.bus, watch=True))
+
+    def _watching(self) -> None:
+        """A reading command reads the legacy map (or the commanding program's state): it never
+        switches a joint to v2, which would take the joint from whoever commands it."""
+        if self.protocol == "v2":
+            raise InvalidArgumentError("this command only reads, in the legacy map or from the program that "
+                                       "commands the arm: --protocol v2 does not apply")
 
     def _keep(self, what: Any) -> Any:
         self._opened.append(what)
@@ -74,6 +82,8 @@ class Session:
         name = name.lower()
         if name not in self.config.joints:
             raise InvalidArgumentError(f"no joint {name!r}; the configuration has {', '.join(self.config.joints)}")
+        if watch:
+            self._watching()
         joint = self._keep(make_joint(self.config.joints[name], self.bus, watch))
         joint.init()
         return joint

@@ -15,7 +15,7 @@ from .options import one_joint
 NAME = "info"
 HELP = ("identity, flags, position, velocity, last rejected frame and link statistics of a joint (read "
         "only: beside a program that commands the arm, what that program last read)")
-USES = ("bus", "config", "json")  # it only watches: no protocol to choose, nothing to take over
+USES = ("bus", "protocol", "config", "json")  # it only watches: nothing to take over
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -23,7 +23,7 @@ from .options import count, positive
 NAME = "monitor"
 HELP = ("live position, velocity and flags of every joint (read only: runs beside the program that "
         "commands the arm, and disturbs nothing)")
-USES = ("bus", "config", "json")  # it only watches: no protocol to choose, nothing to take over
+USES = ("bus", "protocol", "config", "json")  # it only watches: nothing to take over
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -8,7 +8,7 @@ from typing import Any
 
 from ..bus.base import Bus
 from ..commander import Commander, Holder
-from ..errors import IncorrectStateError
+from ..errors import CommError, IncorrectStateError
 from ..firmware import protocol as P
 from .base import Command, Link, LinkState
 from .legacy import LegacyLink
@@ -51,6 +51,8 @@ class WatchedLink(Link):
         return None
 
     def _published_read(self, holder: Holder, entry: dict[str, Any], reg: P.Register) -> tuple[tuple, int]:
+        if not entry.get("read"):
+            raise CommError(f"{holder.describe()} has opened this joint but not read it yet", joint=self.joint)
         flags = int(entry["flags"])
         values: dict[int, Any] = {P.PING: (P.ACK,), P.ANGLEMOVED: (entry["position_deg"],),
                                   P.GETENCODERRPM: (entry["velocity_rpm"],), P.HOMEOFFSET: (entry["offset"],)}
@@ -76,4 +78,6 @@ class WatchedLink(Link):
             entry = None if holder is None else self.published(holder)
             if entry is None:
                 return self.legacy.cycle(None)
+            if not entry.get("read"):
+                return None  # the commander has opened the joint but not read its state yet
             return LinkState(int(entry["flags"]), float(entry["position_deg"]), float(entry["velocity_rpm"]))
