@@ -36,8 +36,8 @@ from .errors import (
     BioscaraError, CommError, IncorrectStateError, InvalidArgumentError, NotEnabledError, NotHomedError,
     NotInitError, StalledError,
 )
-from .firmware import protocol as P
-from .firmware import protocol_v2 as V
+from .firmware.spec import protocol as P
+from .firmware.spec import protocol_v2 as V
 from .link import Command, LegacyLink, Link, LinkRejected, V2Link, WatchedLink
 from .transmission import Transmission
 

@@ -3,7 +3,7 @@ transports that implement it for I2C hardware: smbus2, Adafruit Blinka, the HIL 
 link, and simulated joints in this process. Opening one by URL is `transports.open_bus`.
 
 May import `errors`, `paths`, `transmission`, the shared protocol spec and the firmware's simulator
-(`firmware.protocol`, `firmware.sim`), never the layers
+(`firmware.spec`, `firmware.sim`), never the layers
 above it (joint, arm, the simulator's service).
 """
 

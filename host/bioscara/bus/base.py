@@ -14,7 +14,7 @@ from ..errors import CommError
 
 if TYPE_CHECKING:
     from ..commander import Commander
-from ..firmware.protocol import wire_bits
+from ..firmware.spec.protocol import wire_bits
 
 RETRY_DELAYS_S = (0.0001, 0.001, 0.005)  # between attempts; the original waited only 50 us
 

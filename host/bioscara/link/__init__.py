@@ -7,7 +7,7 @@
   frame that could disturb the commander.
 
 `Joint` (joint.py) holds one of them and never asks which. This package may import `bus.base`,
-`errors`, `commander` and the shared protocol spec (`firmware.protocol`, `firmware.protocol_v2`).
+`errors`, `commander` and the shared protocol spec (`firmware.spec`).
 """
 
 from .base import Command, Link, LinkRejected, LinkState

@@ -6,8 +6,8 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass
 
 from ..errors import BioscaraError
-from ..firmware import protocol as P
-from ..firmware import protocol_v2 as V
+from ..firmware.spec import protocol as P
+from ..firmware.spec import protocol_v2 as V
 
 
 @dataclass(frozen=True)

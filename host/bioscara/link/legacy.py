@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from ..bus.base import Bus
 from ..errors import BioscaraError, CommError
-from ..firmware import protocol as P
+from ..firmware.spec import protocol as P
 from .base import Command, Link, LinkRejected, LinkState, legacy_reason
 
 _ANGLE = P.register(P.ANGLEMOVED)

@@ -1,4 +1,4 @@
-"""The host's protocol v2 link (the spec: firmware/joint/protocol_v2.py): one combined transaction per
+"""The host's protocol v2 link (the spec: firmware/joint/spec/protocol_v2.py): one combined transaction per
 exchange, writing a mailbox frame and reading the state block, with the checks that keep corrupted
 or replayed data out.
 
@@ -15,8 +15,8 @@ from dataclasses import dataclass
 
 from ..bus.base import Bus
 from ..errors import CommError, IncorrectStateError
-from ..firmware import protocol as P
-from ..firmware import protocol_v2 as V
+from ..firmware.spec import protocol as P
+from ..firmware.spec import protocol_v2 as V
 from .base import Command, Link, LinkRejected, LinkState
 
 SYNC_ATTEMPTS = 50  # exchanges before a joint that was asked to switch counts as not speaking v2

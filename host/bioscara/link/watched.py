@@ -9,7 +9,7 @@ from typing import Any
 from ..bus.base import Bus
 from ..commander import Commander, Holder
 from ..errors import CommError, IncorrectStateError
-from ..firmware import protocol as P
+from ..firmware.spec import protocol as P
 from .base import Command, Link, LinkState
 from .legacy import LegacyLink
 
