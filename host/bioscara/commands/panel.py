@@ -55,8 +55,8 @@ def open_model(session: Session, rate: float, *, threaded: bool = True):  # type
         config = replace(config, sim=replace(config.sim, realtime=True))
     bus = open_arm_bus(config)
     clock = bus.monotonic
-    return PanelModel(config, open_arm(config, bus, session.protocol), open_gripper(config, clock), frequency=rate,
-                      threaded=threaded)
+    arm = open_arm(config, bus, session.protocol, take_over=bool(getattr(session.args, "take_over", False)))
+    return PanelModel(config, arm, open_gripper(config, clock), frequency=rate, threaded=threaded)
 
 
 def serve(args: argparse.Namespace) -> int:

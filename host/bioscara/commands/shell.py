@@ -56,7 +56,7 @@ class Context:
 def run(args: argparse.Namespace, session: Session) -> int:
     if args.script not in (None, "-"):
         script_lines(Path(args.script))  # refuses an unreadable script before the bus is opened
-    context = open_context(session.config, session.protocol)
+    context = open_context(session.config, session.protocol, take_over=bool(getattr(args, "take_over", False)))
     shell = Shell(context, out=lambda text: session.console.print(text, markup=False, highlight=False,
                                                                   soft_wrap=True),
                   err=session.err, expert=args.expert, frequency=args.rate, priority=args.priority or None,
@@ -77,12 +77,13 @@ def run(args: argparse.Namespace, session: Session) -> int:
         close_context(shell, context, session)
 
 
-def open_context(config: ArmConfig, protocol: str = "auto") -> Context:
-    """Open the configured bus (the simulator in real time) and the arm (`--protocol`)."""
+def open_context(config: ArmConfig, protocol: str = "auto", *, take_over: bool = False) -> Context:
+    """Open the configured bus (the simulator in real time) and the arm (`--protocol`; `--take-over`
+    from the program that commands it, if any)."""
     if config.bus_url.startswith("sim:"):
         config = replace(config, sim=replace(config.sim, realtime=True))
     bus = open_arm_bus(config)
-    return Context(config, bus, open_arm(config, bus, protocol))
+    return Context(config, bus, open_arm(config, bus, protocol, take_over=take_over))
 
 
 def close_context(shell: Shell, context: Context, session: Session) -> None:
