@@ -325,9 +325,15 @@ def test_user_config_file_and_bus_environment_variable(capsys: pytest.CaptureFix
     path.write_text(Path(read_config().source).read_text().replace("address = 0x14", "address = 0x24"))
     code, out, _ = run(capsys, "info", "j4", "--json")
     assert code == 0 and json.loads(out)["address"] == 0x24, "the user's configuration was used"
+    from bioscara.config import load_config
+    from bioscara.hardware import open_arm
+    assert load_config().joints["j4"].address == 0x24, "and the API's, as the README's script calls it"
     monkeypatch.setenv("BIOSCARA_BUS", "smbus:/dev/i2c-77")
     code, _, err = run(capsys, "scan")
     assert code == 1 and "cannot open /dev/i2c-77" in err, "the variable chose the bus"
+    assert load_config().bus_url == "smbus:/dev/i2c-77"
+    with pytest.raises(OSError, match="cannot open /dev/i2c-77"):
+        open_arm()
     monkeypatch.setenv("BIOSCARA_BUS", "pigeon:")
     code, _, err = run(capsys, "scan")
     assert code == 2 and "in $BIOSCARA_BUS" in err
