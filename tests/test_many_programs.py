@@ -166,3 +166,40 @@ def test_kill_9_of_a_commander_then_of_the_service(config: str, state_dir: Path,
     assert code == 0, err
     info = json.loads(out)
     assert info["position"] is None and not info["homed"], "a new simulated arm, booted afresh"
+
+
+HOLDER = """
+import sys
+from bioscara.bus.smbus import SMBusBus
+bus = SMBusBus(1, smbus_factory=lambda number: object())  # /dev/i2c-1 as every process on a Pi opens it
+bus.commander.claim()
+print("held", flush=True)
+sys.stdin.read()  # commands until its input closes
+"""
+
+
+def test_on_a_raspberry_pi_bus_every_process_meets_the_same_commander_lock() -> None:
+    from bioscara.bus.smbus import SMBusBus
+    from bioscara.commander import ArmBusyError
+
+    bus = SMBusBus(1, smbus_factory=lambda number: object())
+    assert bus.arm_lock_path() == Path(os.environ["XDG_STATE_HOME"]) / "bioscara" / "arm-smbus-1.lock"
+    holder = subprocess.Popen([sys.executable, "-c", HOLDER], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                              text=True)
+    try:
+        assert holder.stdout is not None and holder.stdout.readline() == "held\n"
+        commander = bus.commander
+        assert commander is not None
+        with pytest.raises(ArmBusyError, match=f"the arm on smbus:1 is commanded by pid {holder.pid} "):
+            commander.claim()
+        with commander.watch() as seen:
+            assert seen is not None and seen.pid == holder.pid, "a reader learns who commands, and reads from it"
+        assert holder.stdin is not None
+        holder.stdin.close()
+        assert holder.wait(timeout=10) == 0
+        commander.claim()  # the lock is free once that program has ended
+        commander.release()
+    finally:
+        if holder.poll() is None:
+            holder.kill()
+            holder.wait()
