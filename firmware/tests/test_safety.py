@@ -113,10 +113,25 @@ def test_motion_after_holding_is_guarded_again():
     rig.run_ms(200)
     rig.motor.reached = False
     rig.motor.ramp_rpm = 60.0
-    rig.command("MOVETOANGLE", 0.0)
+    rig.command("MOVETOANGLE", 3600.0)
     rig.motor.calls = []
     rig.run_ms(52)
     assert ("stop", False) in rig.motor.calls and rig.core.flags & NOTENABLED
+
+
+def test_a_move_hunting_around_its_target_is_holding_not_moving():
+    rig = Rig()
+    rig.command("SETUP", 20, 20, 0, 0)
+    rig.command("WATCHDOG", 50)
+    rig.motor.reached = False  # the closed loop keeps the ramp from settling ...
+    rig.motor.ramp_rpm = 4.0
+    rig.command("MOVETOANGLE", 360.0)
+    rig.motor.angle = 352.0  # ... within a few degrees of the target
+    rig.run_ms(500)
+    assert rig.core.positioning and not rig.core.flags & NOTENABLED
+    rig.motor.angle = 300.0  # pushed away from it: that is motion again
+    rig.run_ms(52)
+    assert rig.core.flags & NOTENABLED
 
 
 def test_a_fresh_joint_keeps_the_original_deadman_velocity_only():

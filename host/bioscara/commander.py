@@ -247,18 +247,27 @@ class Commander:
             return
         fd = os.open(self._ensure_dir() / self.lock_path.name, os.O_RDWR | os.O_CREAT, 0o600)
         try:
-            try:
-                fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
-                free = True
-            except BlockingIOError:
-                free = False
-            if free:
-                yield None
-            else:
-                holder = self.holder()
-                yield holder if holder is not None else Holder(0, "a program starting to command", time.time(), "")
+            holder = self._holder_or_shared_lock(fd)
+            yield holder
         finally:
             os.close(fd)
+
+    def _holder_or_shared_lock(self, fd: int) -> Holder | None:
+        """None with the shared lock taken on `fd`, or the commander. A commander writes its
+        record just after it takes the lock: wait for it (at most CLAIM_WAIT_S)."""
+        deadline = time.monotonic() + CLAIM_WAIT_S
+        while True:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+                return None
+            except BlockingIOError:
+                pass
+            holder = self.holder()
+            if holder is not None:
+                return holder
+            if time.monotonic() > deadline:
+                return Holder(0, "a program starting to command", time.time(), "")
+            time.sleep(0.005)
 
     def published(self, holder: Holder) -> dict[str, Any]:
         """The commander's latest joint states; CommError when it does not answer."""

@@ -38,7 +38,7 @@ IRQ = ("_q_in", "_blocking_in", "_blocking_stops", "_reply_wire", "_reply_err", 
        "host_us", "rejects", "stops", "stall_rearms")
 MAIN_LOOP = ("_q_out", "_blocking_out", "_cache_turn", "_ftab", "_logged_rejects", "_motion_allowed",
              "_stops_seen", "disabled", "ready", "closed_loop", "drive_current", "hold_current",
-             "max_acceleration", "max_deceleration", "q_set", "stall", "stallguard", "watchdog_ms")
+             "max_acceleration", "max_deceleration", "q_set", "stall", "stallguard", "target_known", "watchdog_ms")
 SUPERVISION = ("detector", "_coasting")
 TASKS = ("_task_stops", "_task_wake", "inverted", "zero_offset")
 MAIN_SHARED = ("flags", "halts", "positioning", "qd_set", "_task", "task_name", "_safe_pending",
@@ -63,6 +63,7 @@ def init(core, hal, clock, cfg, log, critical):
     core.qd_set = 0  # rpm Q16
     core.q_set = 0  # degrees Q12
     core.positioning = False
+    core.target_known = False  # the running positioning move ends at q_set (MOVETOANGLE)
     core.closed_loop = False
     core.inverted = False
     core.stallguard = False

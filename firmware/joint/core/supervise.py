@@ -20,6 +20,8 @@ from ..motion.fixed import muldiv
 from ..spec.protocol import FLAG_BUSY, FLAG_NOTENABLED, FLAG_NOTHOMED, FLAG_STALL
 
 
+HOLD_WINDOW = const(15 << 12)  # motor degrees Q12: within this of its target a move is holding ...
+HOLD_RPM = const(30 << 16)  # ... when its driver turns slower than this (rpm Q16)
 ORIGINAL = const(0)
 TRACKING = const(1)
 DETECTOR_NAMES = ("original", "tracking")
@@ -84,7 +86,17 @@ class Supervisor:
         not motion, so a quiet host never gets a joint disabled that holds still."""
         if not self.watchdog_ms:
             return self.qd_set != 0
-        if self.qd_set != 0 or self.positioning or (self._task is not None and self.task_name != "boot"):
+        if self.qd_set != 0 or (self._task is not None and self.task_name != "boot"):
+            self._coasting = True
+            return True
+        if (self.positioning or self._coasting) and self.target_known \
+                and abs(self.q_set - self._host_angle()) <= HOLD_WINDOW and abs(self.hal.driver_rpm()) < HOLD_RPM:
+            # A move to an angle that has come within HOLD_WINDOW of it, turning slower than
+            # HOLD_RPM, is holding there (a closed loop can hunt around the target for seconds
+            # before its ramp settles).
+            self._coasting = False
+            return False
+        if self.positioning:
             self._coasting = True
             return True
         if self._coasting and self.hal.driver_rpm() != 0:

@@ -14,6 +14,7 @@ from .base import Command, Link, LinkState
 from .legacy import LegacyLink
 
 FRESH_S = 0.005  # one fetch of the commander's state serves every joint read within this long
+READ_WAIT_S = 1.0  # for a commander that has just opened a joint to read it
 
 
 class WatchedLink(Link):
@@ -51,8 +52,12 @@ class WatchedLink(Link):
         return None
 
     def _published_read(self, holder: Holder, entry: dict[str, Any], reg: P.Register) -> tuple[tuple, int]:
-        if not entry.get("read"):
-            raise CommError(f"{holder.describe()} has opened this joint but not read it yet", joint=self.joint)
+        deadline = time.monotonic() + READ_WAIT_S
+        while not entry.get("read"):  # the commander opened it a moment ago; its first read follows
+            if time.monotonic() > deadline:
+                raise CommError(f"{holder.describe()} has opened this joint but not read it", joint=self.joint)
+            time.sleep(FRESH_S)
+            entry = self.published(holder) or entry
         flags = int(entry["flags"])
         values: dict[int, Any] = {P.PING: (P.ACK,), P.ANGLEMOVED: (entry["position_deg"],),
                                   P.GETENCODERRPM: (entry["velocity_rpm"],), P.HOMEOFFSET: (entry["offset"],)}
