@@ -171,6 +171,10 @@ def test_the_deadman_in_every_mode_allocates_nothing():
     j.tick(500, poll_every=10)
     _zero(j, "velocity with the watchdog")
     assert j.core.qd_set != 0 and not j.core.flags & P.FLAG_NOTENABLED
+    j.command("STOP", 0)
+    j.tick(1000, poll_every=10)  # the ramp down from 60 rpm, with the host watching
+    _zero(j, "holding still with the watchdog, the host quiet", poll_every=0)
+    assert not j.core.flags & P.FLAG_NOTENABLED, "holding still is not motion"
 
 
 def test_the_deadman_quick_stop_allocates_nothing_after_its_decision():

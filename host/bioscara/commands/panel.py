@@ -24,7 +24,7 @@ from ..session import Session
 
 NAME = "panel"
 HELP = "the arm's control panel (Textual): lifecycle, homing, jog, STOP, live plot; --web serves it to a browser"
-USES = ("bus", "protocol", "config")  # a full-screen panel: no --json
+USES = ("bus", "protocol", "config", "take_over")  # a full-screen panel: no --json
 LOCAL = "127.0.0.1"
 PR_SET_PDEATHSIG = 1  # prctl(2)
 
@@ -75,8 +75,8 @@ def open_model(session: Session, rate: float, *, threaded: bool = True):  # type
         config = replace(config, sim=replace(config.sim, realtime=True))
     bus = open_arm_bus(config)
     clock = bus.monotonic
-    return PanelModel(config, open_arm(config, bus, session.protocol), open_gripper(config, clock), frequency=rate,
-                      threaded=threaded)
+    arm = open_arm(config, bus, session.protocol, take_over=bool(getattr(session.args, "take_over", False)))
+    return PanelModel(config, arm, open_gripper(config, clock), frequency=rate, threaded=threaded)
 
 
 def serve(args: argparse.Namespace) -> int:
