@@ -51,6 +51,7 @@ sys.path[:0] = [str(ROOT / "firmware")]
 
 from joint.config import schema as joint_config  # noqa: E402
 from joint.core.supervise import DETECTOR_NAMES as DETECTORS  # noqa: E402
+from joint.motion.hal import MAGNET_OK, MAGNET_WEAK  # noqa: E402
 from joint.spec import protocol as P  # noqa: E402
 from joint.sim import mechanics as M  # noqa: E402
 from joint.sim.bus import SimJointBus, default_costs  # noqa: E402
@@ -106,7 +107,9 @@ class Rig:
         self.stepper = SimStepper(self.clock, seed=seed, **M.stepper_kwargs(
             joint, payload_kg, "nominal" if noise == "as5600" else noise, encoder))
         if weak_magnet:
-            self.stepper.weaken_magnet()
+            # The AS5600 says so in its STATUS (the HOME refuses at once); the TLE5012B-modelled
+            # encoder's status is not read: its weak magnet meets the noise check alone.
+            self.stepper.weaken_magnet(reports=MAGNET_WEAK if encoder == "as5600" else MAGNET_OK)
         self.stepper.set_end_stops(low_deg, high_deg)
         # The shipped per-joint config (its stall and homing constants), on the simulated motor.
         cfg = joint_config.load(str(ROOT / "firmware" / "joint" / "config" / f"{joint}.json"))
