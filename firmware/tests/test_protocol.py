@@ -185,3 +185,11 @@ def test_angles_the_joint_cannot_carry_exactly_are_refused_not_clamped():
         for value, ok in ((field.hi, True), (-field.hi, True), (262144.0, False), (-1e6, False)):
             buf = bytearray(struct.pack("<f", value))
             assert field.check(buf, 0) == ok, (name, value)
+
+
+def test_the_bitwise_crc32_is_zlibs():
+    # The S32 image has no binascii.crc32: protocol.crc32_bitwise computes the spec hash there.
+    assert P.crc32_bitwise(b"123456789") == 0xCBF43926  # the CRC-32 check value
+    assert P.crc32_bitwise(b"") == 0
+    data = bytes(range(256)) * 3
+    assert P.crc32_bitwise(data) == P.crc32(data) & 0xFFFFFFFF, "the port's own crc32 where it has one"

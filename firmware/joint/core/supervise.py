@@ -17,6 +17,7 @@ tracking detector (tracking.py, the encoder no longer following the field);
 
 from ..micro import const, micropython
 from ..motion.fixed import muldiv
+from .irq import FTAB_REARMS
 from ..spec.protocol import FLAG_BUSY, FLAG_NOTENABLED, FLAG_NOTHOMED, FLAG_STALL
 
 
@@ -54,7 +55,7 @@ class Supervisor:
         if self.detector != ORIGINAL or not self.stallguard or self.flags & (FLAG_STALL | FLAG_BUSY):
             return
         hal = self.hal
-        rearms = self.stall_rearms
+        rearms = self._ftab[FTAB_REARMS]
         stalled = self.stall.update(hal.pid_error(), hal.encoder_rpm(), self.qd_set)
         if self.trace is not None:
             self.trace(self.stall)
@@ -70,7 +71,7 @@ class Supervisor:
             track.reset()
             return
         hal = self.hal
-        rearms = self.stall_rearms
+        rearms = self._ftab[FTAB_REARMS]
         if track.update(hal.field_position(), self._encoder_usteps()) and self._halt(FLAG_STALL, rearms=rearms):
             hal.stop(True)
             self.log.warn("stall detected (encoder %d usteps behind the field, threshold %d)"

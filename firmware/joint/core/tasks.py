@@ -9,6 +9,7 @@ import struct
 
 from ..motion.fixed import ANGLE_Q, RPM_Q, muldiv, store_q
 from ..detect.homing import HOMED, RUNNING
+from .irq import FTAB_TASK, FTAB_TASK_STOPS
 from ..spec.protocol import FLAG_BUSY, FLAG_NOTHOMED, FLAG_STALL, HOMING_OUTCOMES, HOMINGRESULT, HOMINGTRAVEL
 from ..detect.tracking import wrapped_diff
 from ..micro import const
@@ -32,14 +33,18 @@ def _usteps_to_angle(usteps):
 class Tasks:
     """JointController's blocking commands (mixed into it): generators yielding milliseconds to wait."""
 
-    def _start_task(self, name, task):
-        self._task_stops = self.stops  # before _task: the IRQ reads both
+    def _start_task(self, name, task, stops):
+        """Run `task` for the command accepted in stop epoch `stops` (its queue slot's: a STOP
+        that came after the command cancels the task, even one that came while it was applied)."""
+        ftab = self._ftab
+        ftab[FTAB_TASK_STOPS] = stops  # before FTAB_TASK: the IRQ reads both
+        ftab[FTAB_TASK] = 1
         self.task_name = name
         self._task_wake = self.clock.ticks_ms()
         self._task = task
 
     def _cancelled(self):
-        return self._task_stops != self.stops
+        return self._ftab[FTAB_TASK_STOPS] != self.stops
 
     def _step_task(self, now):
         try:
@@ -55,6 +60,7 @@ class Tasks:
         if not self._cancelled():
             self.flags &= ~FLAG_BUSY
         self._task = None
+        self._ftab[FTAB_TASK] = 0
         self._irq_on(state)
         self.task_name = None
 

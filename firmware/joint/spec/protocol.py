@@ -17,10 +17,31 @@ firmware runs it inside the I2C IRQ and the host runs the very same check before
 import struct
 import sys
 
+
+
+def crc32_bitwise(data):
+    """CRC-32 (zlib's) bit by bit in 16-bit halves, so every step stays a small int: the spec hash
+    on a port built without binascii.crc32 (the uStepper S32 image), computed once at boot."""
+    hi = lo = 0xFFFF
+    for byte in data:
+        lo ^= byte
+        for _ in range(8):
+            low_bit = lo & 1
+            lo = (lo >> 1) | ((hi & 1) << 15)
+            hi >>= 1
+            if low_bit:
+                hi ^= 0xEDB8
+                lo ^= 0x8320
+    return ((hi ^ 0xFFFF) << 16) | (lo ^ 0xFFFF)
+
+
 try:
     from binascii import crc32
 except ImportError:
-    from zlib import crc32
+    try:
+        from zlib import crc32
+    except ImportError:
+        crc32 = crc32_bitwise
 
 from .protocol_v2 import spec_bytes as _v2_spec_bytes
 from ..micro import const

@@ -9,7 +9,7 @@ import json
 from rich.progress import BarColumn, DownloadColumn, Progress, TextColumn
 from rich.text import Text
 
-from .. import flash, mpboard
+from .. import flash, mpboard, s32flash
 from ..errors import InvalidArgumentError
 from ..session import Session
 from .options import shown
@@ -32,13 +32,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--show-config", action="store_true",
                         help="only show the board's current /joint_config.json (and whether it is valid)")
     parser.add_argument("--board", choices=flash.boards(), default=flash.DEFAULT_BOARD,
-                        help="which board's manifest to deploy (firmware/joint/boards/BOARD.py; default: %(default)s)")
+                        help="which board's manifest to deploy (firmware/joint/boards/BOARD.py; default: %(default)s); "
+                        "s32: a uStepper S32 in its ROM DFU bootloader (BOOT0), written with dfu-util: the image "
+                        "from `make s32-image` and the joint's configuration (docs/s32.md)")
     parser.add_argument("--dry-run", action="store_true",
                         help="show what would change on the board, changing nothing; without PORT: the files "
                         "(and sizes) that would go onto a stock Raspberry Pi Pico, the joint config validated")
     parser.add_argument("--debug", action="store_true",
                         help="keep the source line numbers in the precompiled files, so that a traceback on the "
                         "board names the line (costs about 0.7 KB of the board's heap)")
+    parser.add_argument("--image", metavar="FIRMWARE.bin", default=str(s32flash.DEFAULT_IMAGE),
+                        help=f"with --board s32: the image to write (default {s32flash.DEFAULT_IMAGE})")
     parser.add_argument("--boot-timeout", type=float, default=10.0, metavar="S",
                         help="with --bus: how long the joint may take to answer after the reboot (s; default 10)")
 
@@ -52,6 +56,8 @@ def _joint(text: str) -> str:
 
 
 def run(args: argparse.Namespace, session: Session) -> int:
+    if args.board == "s32":
+        return _run_s32(args, session)
     if args.show_config:
         if args.port is None:
             raise InvalidArgumentError("--show-config reads a board: give its serial port (`bioscara ports` lists them)")
@@ -85,6 +91,53 @@ def run(args: argparse.Namespace, session: Session) -> int:
                  human=_render(plan, args.dry_run, identity, source))
     if identity is not None and not identity.ok:
         raise flash.FlashError("version check failed: " + "; ".join(identity.problems))
+    return 0
+
+
+def _run_s32(args: argparse.Namespace, session: Session) -> int:
+    """The image and the joint's configuration onto a uStepper S32 in DFU mode."""
+    from pathlib import Path
+
+    if args.port is not None:
+        raise InvalidArgumentError("an S32 is found by dfu-util on USB (BOOT0 held high at reset): give no PORT")
+    if args.show_config:
+        raise InvalidArgumentError("--show-config reads a MicroPython board's file; an S32 keeps its configuration "
+                                   "in flash (flash it again to change it)")
+    if args.dry_run and args.bus:
+        raise InvalidArgumentError("--bus checks the flashed joint's version: a dry run flashes nothing to check")
+    config = flash.user_joint_config(args.joint_config, "s32") if args.joint_config else None
+    joint = config[1].joint if config is not None else args.joint
+    if joint is None:
+        raise InvalidArgumentError("which joint? give --joint j1..j4, or --joint-config FILE.json")
+    if args.joint and config is not None and args.joint != joint:
+        raise InvalidArgumentError(f"{args.joint_config} configures {joint.lower()}, not {args.joint.lower()}")
+    image = s32flash.build(joint, Path(args.image), config)
+    if not args.dry_run:
+        s32flash.write(image)
+    identity = None
+    if args.bus and not args.dry_run:
+        identity = flash.check_identity(session.bus, joint, image.address, timeout=args.boot_timeout)
+    data = {"board": "s32", "joint": joint.lower(), "address": image.address, "image": str(image.firmware),
+            "image_bytes": image.firmware_bytes, "config_address": f"0x{s32flash.CONFIG_ADDRESS:08x}",
+            "config": json.loads(image.config), "dry_run": args.dry_run, "verified": not args.dry_run,
+            "identity": None if identity is None else {"ok": identity.ok, "found": identity.found,
+                                                       "problems": list(identity.problems)}}
+    text = Text(f"uStepper S32, {joint.lower()} (I2C 0x{image.address:02x}): {image.firmware} "
+                f"({image.firmware_bytes:,} of {s32flash.IMAGE_LIMIT:,} bytes), configuration "
+                f"({len(image.config)} bytes) at 0x{s32flash.CONFIG_ADDRESS:08x}\n")
+    if args.dry_run:
+        text.append("dry run: nothing was written; dfu-util would write the image and the configuration, "
+                    "read the configuration back and start the firmware")
+    else:
+        text.append("written with dfu-util; the configuration read back matches; the firmware started\n", style="green")
+        if identity is None:
+            text.append("identity check skipped (no --bus given)", style="yellow")
+        elif identity.ok:
+            text.append(f"identity: 0x{identity.address:02x} answers as {joint.lower()}, same firmware and protocol",
+                        style="green")
+    session.emit(data, text)
+    if identity is not None and not identity.ok:
+        raise flash.FlashError("identity check failed: " + "; ".join(identity.problems))
     return 0
 
 
