@@ -2,6 +2,7 @@
 
 from joint.spec import protocol as P
 from joint.detect.tracking import TrackingDetector
+from joint.motion.hal import MAGNET_MISSING, MAGNET_OK, MAGNET_STRONG, MAGNET_WEAK
 from harness import Rig
 
 NOTENABLED, BUSY, NOTHOMED = P.FLAG_NOTENABLED, P.FLAG_BUSY, P.FLAG_NOTHOMED
@@ -413,6 +414,26 @@ def test_a_homing_with_a_noisy_encoder_at_rest_is_refused():
     assert not rig.core.flags & BUSY and rig.core.flags & NOTHOMED
     assert "magnet" in P.HOMING_OUTCOMES[_outcome(rig)]
     assert "set_rpm" not in rig.motor.names()
+
+
+def test_a_homing_with_a_magnet_the_encoder_reports_unfit_is_refused_before_it_moves():
+    """The encoder's own status (the AS5600's MD/ML/MH): missing, too weak, too strong each end the
+    HOME at once, NOTHOMED, with a console line and HOMINGRESULT naming the magnet."""
+    for health, word in ((MAGNET_MISSING, "no magnet"), (MAGNET_WEAK, "too weak"),
+                         (MAGNET_STRONG, "too strong")):
+        rig = Rig()
+        rig.motor.magnet_health = health
+        rig.command("SETUP", 20, 20, 0, 0)
+        rig.command("HOME", 1, 10, 30, 15)
+        rig.run_ms(5)
+        assert not rig.core.flags & BUSY and rig.core.flags & NOTHOMED
+        assert word in P.HOMING_OUTCOMES[_outcome(rig)] and "magnet" in P.HOMING_OUTCOMES[_outcome(rig)]
+        assert "set_rpm" not in rig.motor.names() and "set_home" not in rig.motor.names()
+        assert any(word in line for line in rig.lines), rig.lines
+        rig.motor.magnet_health = MAGNET_OK  # the magnet fixed: the next HOME is not refused by the old word
+        rig.command("HOME", 1, 10, 30, 15)
+        rig.run_ms(600)
+        assert rig.core.flags & BUSY and "set_rpm" in rig.motor.names(), rig.lines
 
 
 def test_a_homing_whose_link_is_still_falling_is_refused():
