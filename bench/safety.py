@@ -51,6 +51,7 @@ sys.path[:0] = [str(ROOT / "firmware")]
 
 from joint.config import schema as joint_config  # noqa: E402
 from joint.core.supervise import DETECTOR_NAMES as DETECTORS  # noqa: E402
+from joint.motion.hal import MAGNET_OK, MAGNET_WEAK  # noqa: E402
 from joint.spec import protocol as P  # noqa: E402
 from joint.sim import mechanics as M  # noqa: E402
 from joint.sim.bus import SimJointBus, default_costs  # noqa: E402
@@ -74,6 +75,10 @@ CONFIG = {
 PAYLOAD = {"J1": 0.2, "J2": 1.0, "J3": 0.2, "J4": 0.2}  # kg: the corner (J2: enough to back-drive)
 TRAVEL = {"J1": 2.0, "J2": 0.1, "J3": 2.0, "J4": 2.0}  # joint units of an unobstructed move
 SPEEDS = (10.0, 30.0, 60.0, 120.0, 250.0)
+# The free motion: long moves to these fractions of TRAVEL in turn (from 0), and a streamed sine
+# (amplitude a fraction of the top speed, Hz) that ends in steps to +-top.
+MOVE_FRACTIONS = (1.0, -1.0, 0.1, 0.0)
+STREAM = (0.6, 0.7)
 NAN = float("nan")
 NOISES = ("nominal", "harsh", "as5600")
 CONTACT_NOISES = ("nominal", "harsh")
@@ -93,6 +98,24 @@ def speeds(joint: str) -> list[float]:
     return [s for s in SPEEDS if s < top * 0.97] + [math.floor(top)]
 
 
+def move_span_deg(joint: str) -> float:
+    """Motor degrees of TRAVEL[joint]."""
+    return math.degrees(TRAVEL[joint] * CONFIG[joint]["n"])
+
+
+def motion_set(joint: str) -> dict[str, set]:
+    """What the bench runs on `joint`, as bench/derive_safety.py's motion_set describes what it
+    derives on (the two must not meet, tests/test_derive_held_out.py): velocity steps (rpm, the
+    collisions' and contacts' speeds and the stream's steps to +-top), moves ((from, to) motor
+    degrees, rounded to 0.1), streams ((amplitude fraction, Hz)), payloads (kg) and seeds."""
+    top = top_rpm(joint)
+    span = move_span_deg(joint)
+    targets = [round(span * f, 1) for f in (0.0,) + MOVE_FRACTIONS]
+    return {"speeds": {round(v, 1) for v in speeds(joint)} | {round(top, 1)},
+            "moves": set(zip(targets, targets[1:])), "streams": {STREAM},
+            "payloads": {0.0, PAYLOAD[joint]}, "seeds": {1, *CONTACT_SEEDS}}
+
+
 class Rig:
     """One joint: firmware on the arm's mechanics, a host that polls PING every `poll_s`."""
 
@@ -106,7 +129,9 @@ class Rig:
         self.stepper = SimStepper(self.clock, seed=seed, **M.stepper_kwargs(
             joint, payload_kg, "nominal" if noise == "as5600" else noise, encoder))
         if weak_magnet:
-            self.stepper.weaken_magnet()
+            # The AS5600 says so in its STATUS (the HOME refuses at once); the TLE5012B-modelled
+            # encoder's status is not read: its weak magnet meets the noise check alone.
+            self.stepper.weaken_magnet(reports=MAGNET_WEAK if encoder == "as5600" else MAGNET_OK)
         self.stepper.set_end_stops(low_deg, high_deg)
         # The shipped per-joint config (its stall and homing constants), on the simulated motor.
         cfg = joint_config.load(str(ROOT / "firmware" / "joint" / "config" / f"{joint}.json"))
@@ -370,19 +395,20 @@ def free_move(s: FreeMove) -> dict:
             stalls += 1
         return True
     if s.kind == "moves":
-        span = math.degrees(TRAVEL[s.joint] * c["n"])
+        span = move_span_deg(s.joint)
         t_move = span / math.degrees(c["vel"] * c["n"]) + 2 * c["vel"] / c["acc"] + 0.5
-        for target in (span, -span, span * 0.1, 0.0):
+        for target in (span * f for f in MOVE_FRACTIONS):
             rig.command("MOVETOANGLE", target)
             if rig.run(t_move, until=stalled):
                 rig.command("SETUP", c["current"], c["current"], 0, 0)
                 rig.command("ENABLESTALLGUARD", c["stall"])
     else:
         # A streamed velocity trajectory as a trajectory controller sends it: 50 Hz setpoints of a
-        # sine at 60 % of the top speed and 0.7 Hz, then an abrupt reversal at full speed.
+        # sine (STREAM: 60 % of the top speed, 0.7 Hz), then an abrupt reversal at full speed.
         top = top_rpm(s.joint)
+        amplitude, hz = STREAM
         for i in range(150):
-            rig.command("SETRPM", 0.6 * top * math.sin(2 * math.pi * 0.7 * i * 0.02))
+            rig.command("SETRPM", amplitude * top * math.sin(2 * math.pi * hz * i * 0.02))
             if rig.run(0.02, poll_s=None, until=stalled):
                 break
         if not stalls + lost:

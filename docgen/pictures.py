@@ -24,7 +24,7 @@ from matplotlib.patches import FancyBboxPatch, Rectangle  # noqa: E402
 
 from bioscara import cli, motion, report  # noqa: E402
 from bioscara.communicator import Communicator  # noqa: E402
-from bioscara.config import load_config  # noqa: E402
+from bioscara.config import read_config  # noqa: E402
 from bioscara.firmware.spec import protocol as P  # noqa: E402
 from bioscara.firmware.spec import protocol_v2 as V  # noqa: E402
 from bioscara.hardware import open_arm  # noqa: E402
@@ -61,7 +61,7 @@ class _Recorder:
 def homing_trace() -> bytes:
     """PNG: `bioscara plot` of a recording of the four joints homing on `sim:virtual`, then moving
     to the middle of their range."""
-    config = load_config()  # the shipped one, whatever the user's
+    config = read_config()  # the shipped one, whatever the user's
     config = replace(config, bus=replace(config.bus, url="sim:virtual", use_mock_hardware=False))
     arm = open_arm(config, protocol=PROTOCOL)
     with tempfile.TemporaryDirectory() as tmp:
@@ -157,8 +157,8 @@ ARCHITECTURE = {
         ("Communicator: fixed-rate read/write cycle", ["host/bioscara/communicator.py"]),
         ("Joint, Gripper: units, limits, errors", ["host/bioscara/joint.py", "host/bioscara/gripper.py",
                                                    "host/bioscara/transmission.py"]),
-        ("protocol links: legacy registers, v2 memory map", ["host/bioscara/v2link.py"]),
-        ("Bus: smbus2, blinka, serial bridge, sim", ["host/bioscara/bus"]),
+        ("protocol links: legacy registers, v2 memory map", ["host/bioscara/link"]),
+        ("Bus: smbus2, blinka, serial bridge, sim", ["host/bioscara/bus", "host/bioscara/transports.py"]),
     ],
     "joint": [  # bottom-aligned with the host's: the spec beside the host's links, the IRQ path on the bus
         ("motor HAL: Pico, uStepper S32 or simulated stepper", ["firmware/joint/motion", "firmware/joint/pico",

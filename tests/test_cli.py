@@ -110,17 +110,16 @@ def test_info_reports_identity_and_flags(capsys: pytest.CaptureFixture[str]) -> 
     assert "{" not in out and "e-05" not in out, "no Python reprs"
 
 
-def test_scan_and_info_show_the_protocol_and_protocol_forces_one(capsys: pytest.CaptureFixture[str],
-                                                                 bus: SimBus) -> None:
+def test_scan_and_info_only_read_they_switch_no_protocol(capsys: pytest.CaptureFixture[str], bus: SimBus) -> None:
     code, out, _ = run(capsys, "scan", "--json", bus=bus)
     assert code == 0 and all(d["protocols"] == "legacy+v2" for d in json.loads(out))
     code, out, _ = run(capsys, "info", "j2", "--json", bus=bus)
     info = json.loads(out)
-    assert code == 0 and info["protocol"] == "v2" and info["v2_link"]["bad_states"] == 0
-    assert bus.joint(0x12).protocol == 1, "info returns the joint to the legacy map when done"
-    code, out, _ = run(capsys, "info", "j2", "--json", "--protocol", "legacy", bus=bus)
-    assert code == 0 and json.loads(out)["protocol"] == "legacy" and "v2_link" not in json.loads(out)
-    code, _, err = run(capsys, "info", "j2", "--protocol", "v3", bus=bus)
+    assert code == 0 and info["commanded_by"] is None and info["spec_matches"]
+    assert bus.joint(0x12).protocol == 1, "info reads the legacy map and switches nothing"
+    code, _, err = run(capsys, "info", "j2", "--protocol", "v2", bus=bus)
+    assert code == 2 and "only reads" in err and bus.joint(0x12).protocol == 1
+    code, _, err = run(capsys, "move", "j2", "0.1", "--protocol", "v3", bus=bus)
     assert code == 2 and "invalid choice: 'v3'" in err
 
 
@@ -239,8 +238,8 @@ def test_scan_is_a_bring_up_check(capsys: pytest.CaptureFixture[str], config, tm
         entries[0x13]["problems"][0]
     assert "misaddressed: j3 (by IDENTITY) answers here" in entries[0x40]["problems"][0]
     from pathlib import Path
-    from bioscara.config import load_config
-    text = Path(load_config().source).read_text()
+    from bioscara.config import read_config
+    text = Path(read_config().source).read_text()
     three = tmp_path / "three.toml"
     three.write_text(text[:text.index("[joints.j4]")] + text[text.index("[gripper]"):].replace("j4 = 2.95\n", ""))
     code, out, _ = run(capsys, "scan", "--json", "--config", str(three), bus=_bus_with(config))
@@ -320,16 +319,22 @@ def test_user_config_file_and_bus_environment_variable(capsys: pytest.CaptureFix
     import os
     from pathlib import Path
 
-    from bioscara.config import load_config, user_config_path
+    from bioscara.config import read_config, user_config_path
     path = user_config_path()
     assert path == Path(os.environ["XDG_CONFIG_HOME"]) / "bioscara" / "arm.toml"
     path.parent.mkdir(parents=True)
-    path.write_text(Path(load_config().source).read_text().replace("address = 0x14", "address = 0x24"))
+    path.write_text(Path(read_config().source).read_text().replace("address = 0x14", "address = 0x24"))
     code, out, _ = run(capsys, "info", "j4", "--json")
     assert code == 0 and json.loads(out)["address"] == 0x24, "the user's configuration was used"
+    from bioscara.config import load_config
+    from bioscara.hardware import open_arm
+    assert load_config().joints["j4"].address == 0x24, "and the API's, as the README's script calls it"
     monkeypatch.setenv("BIOSCARA_BUS", "smbus:/dev/i2c-77")
     code, _, err = run(capsys, "scan")
     assert code == 1 and "cannot open /dev/i2c-77" in err, "the variable chose the bus"
+    assert load_config().bus_url == "smbus:/dev/i2c-77"
+    with pytest.raises(OSError, match="cannot open /dev/i2c-77"):
+        open_arm()
     monkeypatch.setenv("BIOSCARA_BUS", "pigeon:")
     code, _, err = run(capsys, "scan")
     assert code == 2 and "in $BIOSCARA_BUS" in err

@@ -26,7 +26,7 @@ from typing import Callable
 import pytest
 
 from bioscara import cli, firmware_flash, mpboard
-from bioscara.config import load_config
+from bioscara.config import read_config
 from bioscara.errors import ConfigError
 from bioscara.firmware.spec.protocol import PROTOCOL_VERSION, SPEC_HASH
 from bioscara.firmware.spec.version import FIRMWARE_VERSION
@@ -318,7 +318,7 @@ def test_a_pseudo_terminal_nothing_answers_on_is_refused_not_waited_on_for_good(
 
 @pytest.fixture
 def sim_bus():
-    config = load_config()
+    config = read_config()
     bus = open_arm_bus(replace(config, bus=replace(config.bus, url="sim:virtual")))
     yield bus
     bus.close()

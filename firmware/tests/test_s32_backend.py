@@ -12,6 +12,7 @@ from joint.config import schema as config
 from joint.spec import protocol as P
 from joint.core.controller import JointController
 from joint.motion.fixed import ANGLE_Q, RPM_Q, STEPS_Q
+from joint.motion.hal import MAGNET_MISSING, MAGNET_OK
 from joint.links.i2c_target import I2CTargetAdapter
 from joint.console.log import Logger
 from joint.s32 import board as s32_board
@@ -176,6 +177,19 @@ def test_a_broken_encoder_fails_begin():
     board = Board()
     board.tle.fault = 0x1000
     raises(OSError, motor_on(board).begin)
+
+
+def test_the_magnet_is_missing_when_the_safety_word_flags_the_angle():
+    board, motor = begun()
+    assert motor.magnet() == MAGNET_OK
+    for fault in (0x4000, 0x2000, 0x1000):
+        board.tle.fault = fault
+        assert motor.magnet() == MAGNET_MISSING
+    board.tle.fault = 0
+    board.tle.corrupt_crc = True
+    assert motor.magnet() == MAGNET_MISSING
+    board.tle.corrupt_crc = False
+    assert motor.magnet() == MAGNET_OK
 
 
 def test_move_to_angle_writes_xtarget_in_usteps_and_arrives():

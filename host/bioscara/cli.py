@@ -1,7 +1,7 @@
 """The `bioscara` command line: one module per command in `bioscara.commands`.
 
 A command module may declare `USES`, the common options it takes (`bus`, `protocol`, `config`,
-`json`; all four by default): options a command would ignore are refused. The common options and
+`json`, `take_over`; all five by default): options a command would ignore are refused. The common options and
 `-v` are accepted before the command as well as after it. Failures the user can act on print one line and exit 2
 (usage and configuration errors) or 1 (device and bus errors); nothing prints a traceback.
 """
@@ -22,8 +22,8 @@ from .commands import COMMANDS
 from .errors import BioscaraError, ConfigError, InvalidArgumentError
 from .session import Session
 
-ALL_OPTIONS = ("bus", "protocol", "config", "json")
-TOP_DEFAULTS = {"bus": None, "protocol": "auto", "config": None, "json": False}  # what "not given" looks like
+ALL_OPTIONS = ("bus", "protocol", "config", "json", "take_over")
+TOP_DEFAULTS = {"bus": None, "protocol": "auto", "config": None, "json": False, "take_over": False}  # what "not given" looks like
 USAGE, DEVICE, INTERNAL, BROKEN_PIPE = 2, 1, 70, 141  # exit statuses (141: 128 + SIGPIPE)
 
 
@@ -63,6 +63,10 @@ def _common(uses: Sequence[str], top: bool) -> argparse.ArgumentParser:
     if "config" in uses:
         common.add_argument("--config", metavar="FILE", help="arm configuration (TOML; default: "
                             "$XDG_CONFIG_HOME/bioscara/arm.toml if it exists, else the shipped j1-j4 configuration)")
+    if "take_over" in uses:
+        common.add_argument("--take-over", action="store_true", help="if another program commands the arm, "
+                            "stop it and command (default: refuse, naming it)",
+                            **({"default": False} if top else suppress))
     if "json" in uses:
         common.add_argument("--json", action="store_true", help="machine-readable output (JSON)",
                             **({"default": False} if top else suppress))

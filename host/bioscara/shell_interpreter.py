@@ -81,7 +81,7 @@ def fault_cause(exc: BioscaraError) -> str:
     if isinstance(exc, StalledError):
         return f"{where}stall: stall detection stopped the joint (a collision, or more load than its current)"
     if isinstance(exc, NotEnabledError):
-        return (f"{where}deadman: the joint stopped and disabled itself after 50 ms without traffic "
+        return (f"{where}deadman: the joint stopped and disabled itself: {exc.detail} "
                 "(keep the communicator running while a joint moves)")
     if isinstance(exc, CommError):
         return f"{where}lost link: {exc.detail}"
@@ -412,6 +412,9 @@ class Shell:
                          f"{aj.command.home:+g}"])
         for line in _table(rows):
             self.out(line)
+        for name, aj in arm.joints.items():
+            if aj.joint.disabled_cause and not aj.joint.is_enabled():
+                self.out(f"{name}: {aj.joint.disabled_cause}")
 
     @command("JOINT|all [position|velocity|home|off]", "show or switch a joint's command mode",
              "Switches through the arm's command interfaces: the joint's active mode is stopped and\n"

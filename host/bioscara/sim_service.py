@@ -467,6 +467,9 @@ class ServiceBus(Bus):
     def describe(self) -> str:
         return "sim:"
 
+    def arm_lock_path(self) -> Path:
+        return self.state_dir / "arm-sim.lock"  # beside the service: a private state dir has its own
+
     def _hello(self) -> dict[str, Any]:
         try:
             code, payload = self._ask(HELLO, json.dumps({"specs": specs_to_json(self.specs)}).encode())

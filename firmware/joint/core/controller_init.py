@@ -39,8 +39,8 @@ from ..spec.version import FIRMWARE_VERSION
 IRQ = ("_reply_wire", "_reply_err", "transactions", "host_us", "stops")
 MAIN_LOOP = ("_cache_turn", "_logged_rejects", "_motion_allowed", "_stops_seen", "disabled", "ready",
              "closed_loop", "drive_current", "hold_current", "max_acceleration", "max_deceleration",
-             "q_set", "stall", "stallguard", "watchdog_ms")
-SUPERVISION = ("detector",)
+             "q_set", "stall", "stallguard", "target_known", "watchdog_ms")
+SUPERVISION = ("detector", "_coasting")
 TASKS = ("_task_wake", "inverted", "zero_offset")
 MAIN_SHARED = ("flags", "halts", "positioning", "qd_set", "_task", "task_name", "_safe_pending",
                "_next_sample_ms", "_next_stall_ms", "_next_track_ms")
@@ -68,6 +68,7 @@ def init(core, hal, clock, cfg, log, critical):
     core.qd_set = 0  # rpm Q16
     core.q_set = 0  # degrees Q12
     core.positioning = False
+    core.target_known = False  # the running positioning move ends at q_set (MOVETOANGLE)
     core.closed_loop = False
     core.inverted = False
     core.stallguard = False
@@ -85,6 +86,7 @@ def init(core, hal, clock, cfg, log, critical):
     # stop's deepest point: the host's angle is the encoder's plus this.
     core.zero_offset = 0
     core._safe_pending = False
+    core._coasting = False  # the ramp after commanded motion, until the motor first stands
     # The host's acceleration limits, restored after a deadman stop, and the deadman's
     # quick-stop deceleration: full steps/s^2 Q4, converted here, once.
     core.max_acceleration = core.max_deceleration = to_q(cfg.boot.max_acceleration, STEPS_Q)

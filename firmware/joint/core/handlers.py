@@ -43,6 +43,7 @@ class Handlers:
         if rpm == 0 or self._motion_allowed:  # _may_move(), inlined: a host streams SETRPM
             self.hal.set_rpm(rpm)
             self.positioning = False
+            self.target_known = False
 
     def _move_steps(self, q, off):
         if self._may_move():
@@ -59,9 +60,11 @@ class Handlers:
         if self._may_move():
             self.hal.move_to_angle(self.q_set - self.zero_offset)
             self._positioning_started()
+            self.target_known = True  # q_set is where this move ends (the deadman's hold window)
 
     def _positioning_started(self):
         self.positioning = True
+        self.target_known = False
         self.qd_set = 0
 
     def _set_current(self, q, off):

@@ -140,20 +140,13 @@ class Tasks:
         hal.set_current(current)
         hal.set_hold_current(current)
         hal.stop(True)
-        # The settle doubles as the magnet check, in its second half (the first lets a link that
-        # fell while the coils were off be caught): the encoder's jumps while the motor holds.
         struct.pack_into("<B", self._cache[HOMINGRESULT], 0, RUNNING)  # a reply cache, as handlers.py writes them
         clock = self.clock
-        yield _HOMING_SETTLE_MS // 2
-        start = clock.ticks_ms()
-        monitor.rest(self._encoder_usteps(), True)
-        while clock.ticks_diff(clock.ticks_ms(), start) < _HOMING_SETTLE_MS // 2 and not self._cancelled():
-            yield 1
-            monitor.rest(self._encoder_usteps(), False)
-        outcome = RUNNING
-        if not self._cancelled() and monitor.noisy():
-            outcome = monitor.outcome
-        elif not self._cancelled():
+        # The encoder's own word on its magnet first (the AS5600's status), then the settle.
+        outcome = monitor.check_magnet(hal.magnet())
+        if outcome == RUNNING:
+            outcome = yield from self._rest_check()
+        if outcome == RUNNING and not self._cancelled():
             hal.set_rpm((speed if direction else -speed) << RPM_Q)
             monitor.start(1 if direction else -1, speed, sensitivity, hal.field_position(),
                           self._encoder_usteps())
@@ -191,6 +184,22 @@ class Tasks:
         hal.set_current(self.drive_current)
         hal.set_hold_current(self.hold_current)
         self.track.reset()
+
+    def _rest_check(self):
+        """The homing's settle, doubling as a check in its second half (the first lets a link that
+        fell while the coils were off be caught): the encoder's jumps while the motor holds. The
+        outcome so far: RUNNING, NOISY or MOVING."""
+        clock = self.clock
+        monitor = self.homing
+        yield _HOMING_SETTLE_MS // 2
+        start = clock.ticks_ms()
+        monitor.rest(self._encoder_usteps(), True)
+        while clock.ticks_diff(clock.ticks_ms(), start) < _HOMING_SETTLE_MS // 2 and not self._cancelled():
+            yield 1
+            monitor.rest(self._encoder_usteps(), False)
+        if not self._cancelled() and monitor.noisy():
+            return monitor.outcome
+        return RUNNING
 
     def _settle(self):
         """Wait (at most _SETTLE_MAX_MS) until the encoder has moved less than _REST_USTEPS in

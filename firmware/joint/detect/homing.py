@@ -20,6 +20,8 @@ It cannot lie or push on (issue 20):
 * bounded push: from the first lag of a contact (`_CONTACT_USTEPS`, a full step, after a push) the
   joint pushes at most `_PUSH_MS`; evidence without the sensitivity reached by then ends it
   PUSH_LIMIT;
+* the encoder's own word first: a sensor that reports its magnet missing, too weak or too strong
+  (the AS5600's MD/ML/MH) is refused before the motor moves (`check_magnet`: NO_MAGNET..);
 * the joint must rest, and its encoder be quiet, before it starts (`rest` / `noisy`): a link still
   falling is refused (MOVING), and so is a reading that jumps by more than `_NOISE_USTEPS` against
   its trend (NOISY: a weak or missing magnet).
@@ -37,6 +39,7 @@ TIMEOUT = const(3)
 PUSH_LIMIT = const(4)
 NOISY = const(5)
 MOVING = const(6)
+NO_MAGNET = const(7)  # then WEAK_MAGNET 8, STRONG_MAGNET 9: NO_MAGNET - 1 + hal.MAGNET_*
 
 _USTEPS_PER_DEG_Q8 = const(36409)  # 51200/360 usteps per degree, x 256
 _MARGIN_MS = const(3000)
@@ -89,6 +92,12 @@ class HomingMonitor:
             self._rest_jump = jump
         self._rest_prev2 = self._rest_prev
         self._rest_prev = encoder
+
+    def check_magnet(self, magnet):
+        """A HOME's first check: `magnet` is MotorHAL.magnet()'s code; the outcome so far,
+        RUNNING for MAGNET_OK (0), else the refusal that names the magnet's fault."""
+        self.outcome = NO_MAGNET - 1 + magnet if magnet else RUNNING
+        return self.outcome
 
     def noisy(self):
         """True if the joint is not fit to home: it moved while held (MOVING: sampled motion also

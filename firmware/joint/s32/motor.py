@@ -11,7 +11,7 @@ rate (about 1 kHz, not 1541.85 Hz), so a stalled motor's error baseline v * T is
 driver_rpm() reports the true ramp speed (the library reported 0.596x of it).
 """
 
-from ..motion.hal import MotorHAL
+from ..motion.hal import MAGNET_MISSING, MAGNET_OK, MotorHAL
 from ..motion.velocity import FixedVelocityEstimator
 from . import tmc5130 as tmc
 from .tle5012b import COUNTS_PER_REV
@@ -282,6 +282,13 @@ class S32Stepper(MotorHAL):
 
     def driver_position(self):
         return self._x
+
+    def magnet(self):
+        """One angle read: a reading the TLE5012B's safety word flags (system error, access error,
+        invalid angle) or a wrong CRC counts as no magnet. The safety word does not tell a weak
+        magnet from a strong one and its STAT register is not read: a marginal magnet meets the
+        homing's noise check."""
+        return MAGNET_MISSING if self._enc.read_angle() < 0 else MAGNET_OK
 
     def diagnostics(self):
         """Driver and encoder health (reads the driver; for the debug console, not the loop)."""

@@ -42,9 +42,11 @@ Simulator hooks (not part of MotorHAL):
     set_load_torque(nm)            external torque on the load (on top of the constant load_torque);
                                    positive pushes toward negative angles
     driver_position()              XACTUAL, usteps
-    weaken_magnet(noise_factor=20, harmonics_deg=(20.0, 10.0))
+    weaken_magnet(noise_factor=20, harmonics_deg=(20.0, 10.0), reports=MAGNET_WEAK)
                                    the fault mode of ustepper-model.md 8.3: encoder noise x factor and
-                                   a large harmonic error (a weak or displaced magnet)
+                                   a large harmonic error (a weak or displaced magnet); the sensor's
+                                   status then says `reports` (hal.MAGNET_*: MAGNET_MISSING for a
+                                   magnet gone, MAGNET_OK for a marginal one its status misses)
 Walls belong on the side the load is not on: one placed behind it pushes it out like a
 compressed spring. A collision of the arm seen through the joint reduction N is far softer than
 the same contact on the motor shaft (joint stiffness / N^2); mechanics.py has the arm's values.
@@ -56,7 +58,7 @@ true ramp speed, not the library's 0.596x figure.
 
 import math
 
-from ..motion.hal import MotorHAL
+from ..motion.hal import MAGNET_OK, MAGNET_WEAK, MotorHAL
 from .ramp import Ramp, POSITIONING, VELOCITY_POS, VELOCITY_NEG
 from ..motion.velocity import VelocityEstimator
 
@@ -209,6 +211,7 @@ class SimStepper(MotorHAL):
         self._harmonic1_phase = 2.0 * math.pi * rng.uniform()
         self._harmonic2_phase = 2.0 * math.pi * rng.uniform()
         self._noise_counts = enc_sigma
+        self._magnet = MAGNET_OK  # what the sensor's status says (weaken_magnet)
         self._isr_skip_prob = isr_skip_prob
         self._enc_fail_prob = enc_fail_prob
         # The ISR grid runs from construction at a random phase, so the firmware's polling is
@@ -655,11 +658,15 @@ class SimStepper(MotorHAL):
             v = self._field_dir * self._ramp.v
         self._add(x, -1 if v < 0.0 else 1, stiffness, damping)
 
-    def weaken_magnet(self, noise_factor=20.0, harmonics_deg=(20.0, 10.0)):
+    def weaken_magnet(self, noise_factor=20.0, harmonics_deg=(20.0, 10.0), reports=MAGNET_WEAK):
         cpd = self._counts_per_rev / 360.0
         self._noise_counts *= noise_factor
         self._harmonic1_counts = harmonics_deg[0] * cpd
         self._harmonic2_counts = harmonics_deg[1] * cpd
+        self._magnet = reports
+
+    def magnet(self):
+        return self._magnet
 
     def set_load_torque(self, nm):
         self._external_torque_nm = nm

@@ -450,6 +450,9 @@ HOMING_OUTCOMES = (
     "end stop found, but the sensitivity was not reached within the push time: lower it",
     "encoder too noisy at rest (weak or missing magnet): homing refused",
     "the joint did not come to rest before homing (a link falling under its load): homing refused",
+    "encoder reports no magnet (or does not answer): homing refused",
+    "encoder reports its magnet too weak (too far from the sensor): homing refused",
+    "encoder reports its magnet too strong (too close to the sensor): homing refused",
 )
 
 BY_ADDR = [None] * 256

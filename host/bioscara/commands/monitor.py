@@ -21,12 +21,14 @@ from ..session import Session
 from .options import count, positive
 
 NAME = "monitor"
-HELP = "live position, velocity and flags of every joint (read only: nothing is enabled)"
+HELP = ("live position, velocity and flags of every joint (read only: runs beside the program that "
+        "commands the arm, and disturbs nothing)")
 EXAMPLES = (
     ('bioscara monitor', 'a live table of every joint'),
     ('bioscara monitor --rate 20 --duration 3 --record run.csv', '3 s at 20 Hz, recorded to run.csv'),
     ('bioscara monitor --json --samples 5', 'five samples as JSON Lines, then a summary line'),
 )
+USES = ("bus", "protocol", "config", "json")  # it only watches: nothing to take over
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -71,7 +73,7 @@ def _line(snapshot: Snapshot, arm: Arm) -> str:
 
 
 def run(args: argparse.Namespace, session: Session) -> int:
-    arm = session.arm
+    arm = session.watched_arm()
     comm = Communicator(arm, frequency=args.rate)
     arm.configure()
     writer = None

@@ -29,7 +29,7 @@ EXAMPLES = (
     ('bioscara panel --bus smbus:1', "on a Raspberry Pi's joint bus (over SSH: `ssh -t pi@robot ...`)"),
     ('bioscara panel --web', 'the same panel in a browser, on http://127.0.0.1:8000'),
 )
-USES = ("bus", "protocol", "config")  # a full-screen panel: no --json
+USES = ("bus", "protocol", "config", "take_over")  # a full-screen panel: no --json
 LOCAL = "127.0.0.1"
 PR_SET_PDEATHSIG = 1  # prctl(2)
 
@@ -80,8 +80,8 @@ def open_model(session: Session, rate: float, *, threaded: bool = True):  # type
         config = replace(config, sim=replace(config.sim, realtime=True))
     bus = open_arm_bus(config)
     clock = bus.monotonic
-    return PanelModel(config, open_arm(config, bus, session.protocol), open_gripper(config, clock), frequency=rate,
-                      threaded=threaded)
+    arm = open_arm(config, bus, session.protocol, take_over=bool(getattr(session.args, "take_over", False)))
+    return PanelModel(config, arm, open_gripper(config, clock), frequency=rate, threaded=threaded)
 
 
 def serve(args: argparse.Namespace) -> int:

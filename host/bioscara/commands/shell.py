@@ -33,7 +33,7 @@ EXAMPLES = (
     ('bioscara shell', 'the arm console on the shared simulated arm (`help` inside)'),
     ("printf 'configure\\nactivate\\nstate\\n' | bioscara shell", 'a script on stdin; exit status 1 at the first failing line'),
 )
-USES = ("bus", "protocol", "config")
+USES = ("bus", "protocol", "config", "take_over")
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--script", metavar="FILE", help="run FILE's commands and exit; non-zero at the first "
@@ -62,7 +62,7 @@ class Context:
 def run(args: argparse.Namespace, session: Session) -> int:
     if args.script not in (None, "-"):
         script_lines(Path(args.script))  # refuses an unreadable script before the bus is opened
-    context = open_context(session.config, session.protocol)
+    context = open_context(session.config, session.protocol, take_over=bool(getattr(args, "take_over", False)))
     session.drives(context.arm)
     shell = Shell(context, out=lambda text: session.console.print(text, markup=False, highlight=False,
                                                                   soft_wrap=True),
@@ -84,12 +84,13 @@ def run(args: argparse.Namespace, session: Session) -> int:
         close_context(shell, context, session)
 
 
-def open_context(config: ArmConfig, protocol: str = "auto") -> Context:
-    """Open the configured bus (the simulator in real time) and the arm (`--protocol`)."""
+def open_context(config: ArmConfig, protocol: str = "auto", *, take_over: bool = False) -> Context:
+    """Open the configured bus (the simulator in real time) and the arm (`--protocol`; `--take-over`
+    from the program that commands it, if any)."""
     if config.bus_url.startswith("sim:"):
         config = replace(config, sim=replace(config.sim, realtime=True))
     bus = open_arm_bus(config)
-    return Context(config, bus, open_arm(config, bus, protocol))
+    return Context(config, bus, open_arm(config, bus, protocol, take_over=take_over))
 
 
 def close_context(shell: Shell, context: Context, session: Session) -> None:
