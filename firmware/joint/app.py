@@ -7,12 +7,8 @@ the joint disabled, reporting why on the serial console, instead of crashing.
 
 from .clock import MonotonicClock
 from .core import JointController
-from .debug import DebugConsole, UsbStdio
-from .i2c_target import I2CTargetAdapter
 from .log import Logger
-from .protocol_v2 import MEM_ADDRSIZE
 from .settings import CONFIG_FILE
-from .v2 import ProtocolSwitch
 
 # RP2040 DW_apb_i2c IC_STATUS of I2C0/I2C1 and its SLV_ACTIVITY bit: set while a transaction
 # addressed to the target is in progress. The v2 swap waits for it to clear.
@@ -30,19 +26,20 @@ def build_motor(cfg):
     raise ValueError("motor backend %r cannot run on a board" % cfg.motor.get("backend"))
 
 
-def build(machine, config_path=CONFIG_FILE, clock=None, write=None):
-    """Load the configuration and create the controller; returns (core, cfg, log)."""
+def build(machine, config_path=CONFIG_FILE, clock=None, write=None, motor_builder=build_motor):
+    """Load the configuration and create the controller; returns (core, cfg, log). `machine`
+    None: no interrupt shares the core's state (CircuitPython polls its I2C target)."""
     from . import config  # boot only (see _drop_boot_only)
     cfg = config.load(config_path)
     log = Logger(cfg.joint or "joint", write=write)
     motor = None
     if cfg.valid:
         try:
-            motor = build_motor(cfg)
+            motor = motor_builder(cfg)
         except Exception as exc:
             cfg.errors.append("motor backend failed to start: %r" % (exc,))
-    core = JointController(motor, clock or MonotonicClock(), cfg, log,
-                           critical=(machine.disable_irq, machine.enable_irq))
+    critical = None if machine is None else (machine.disable_irq, machine.enable_irq)
+    core = JointController(motor, clock or MonotonicClock(), cfg, log, critical=critical)
     _drop_boot_only()
     return core, cfg, log
 
@@ -59,7 +56,7 @@ def _drop_boot_only():
     """On the board, forget the boot-only modules: out of sys.modules and their packages, their
     code and tables are collected. Importing one again simply reloads it."""
     import sys
-    if sys.implementation.name != "micropython":
+    if sys.implementation.name == "cpython":
         return
     package = __name__[:-len("app")]  # "joint."
     for path in BOOT_ONLY:
@@ -95,7 +92,13 @@ def bus_activity_probe(machine, bus):
 
 def join_bus(machine, core, cfg, log):
     """Become an I2C target once booted, as the original registered its handlers last. Serves the
-    legacy map; the returned ProtocolSwitch moves to v2 when the host asks (main loop)."""
+    legacy map; the returned ProtocolSwitch moves to v2 when the host asks (main loop). The links
+    are imported here: CircuitPython's joint (cpy/app.py) builds on this module without them."""
+    from .i2c_target import I2CTargetAdapter
+    from .protocol_v2 import MEM_ADDRSIZE
+    from .v2 import ProtocolSwitch
+
+    _drop_boot_only()  # v2 loaded protocol_v2 again
     if cfg.address is None:
         log.error("no valid I2C address configured: not joining the bus")
         return None
@@ -137,6 +140,8 @@ def boot(machine, config_path=CONFIG_FILE):
 def run(config_path=CONFIG_FILE):
     import machine
     import time
+
+    from .debug import DebugConsole, UsbStdio
 
     core, cfg, log = boot(machine, config_path)
     switch = join_bus(machine, core, cfg, log)

@@ -39,7 +39,9 @@ CONFIG_PATH = "/" + firmware_config.CONFIG_FILE
 MAIN_PATH = "/main.py"
 MANAGED = (MAIN_PATH, CONFIG_PATH, PACKAGE_DIR)
 BOARD_MAIN = "board_main.py"  # in the firmware package; goes to the board root as /main.py
-NOT_ON_BOARD = frozenset({"sim", "configs", "tests", "__pycache__", BOARD_MAIN})
+BOARD_CODE = "board_code.py"  # in the firmware's cpy package; goes to CIRCUITPY as /code.py
+NOT_ON_BOARD = frozenset({"sim", "configs", "tests", "__pycache__", BOARD_MAIN, BOARD_CODE})
+NOT_ON_MICROPYTHON = frozenset({"cpy", "cp_target.py"})  # CircuitPython's backend and link
 APP_MODULE = "joint.app"
 FIRMWARE = dotted(FIRMWARE_VERSION)  # the version this host deploys and expects back
 # What mpboard's PROBE reports on a stock Raspberry Pi Pico with MicroPython v1.28.0 (the emulated
@@ -64,16 +66,17 @@ class Image:
         return hashlib.sha256(self.files[path]).hexdigest()
 
 
-def firmware_sources() -> dict[str, bytes]:
+def firmware_sources(runtime: str = "micropython") -> dict[str, bytes]:
     """The board's `joint` package from the installed firmware: "joint/app.py" -> source."""
     found: dict[str, bytes] = {}
+    skip = NOT_ON_BOARD | (NOT_ON_MICROPYTHON if runtime == "micropython" else frozenset())
 
     def walk(node: Traversable, prefix: str) -> None:
         for child in node.iterdir():
             if child.is_dir():
-                if child.name not in NOT_ON_BOARD:
+                if child.name not in skip:
                     walk(child, f"{prefix}/{child.name}")
-            elif child.name.endswith(".py") and child.name not in NOT_ON_BOARD:
+            elif child.name.endswith(".py") and child.name not in skip:
                 found[f"{prefix}/{child.name}"] = child.read_bytes()
 
     walk(resources.files("bioscara.firmware"), "joint")
