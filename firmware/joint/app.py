@@ -7,8 +7,12 @@ the joint disabled, reporting why on the serial console, instead of crashing.
 
 from .clock import MonotonicClock
 from .core import JointController
+from .debug import DebugConsole, UsbStdio
+from .i2c_target import I2CTargetAdapter
 from .log import Logger
+from .protocol_v2 import MEM_ADDRSIZE
 from .settings import CONFIG_FILE
+from .v2 import ProtocolSwitch
 
 # RP2040 DW_apb_i2c IC_STATUS of I2C0/I2C1 and its SLV_ACTIVITY bit: set while a transaction
 # addressed to the target is in progress. The v2 swap waits for it to clear.
@@ -92,13 +96,7 @@ def bus_activity_probe(machine, bus):
 
 def join_bus(machine, core, cfg, log):
     """Become an I2C target once booted, as the original registered its handlers last. Serves the
-    legacy map; the returned ProtocolSwitch moves to v2 when the host asks (main loop). The links
-    are imported here: CircuitPython's joint (cpy/app.py) builds on this module without them."""
-    from .i2c_target import I2CTargetAdapter
-    from .protocol_v2 import MEM_ADDRSIZE
-    from .v2 import ProtocolSwitch
-
-    _drop_boot_only()  # v2 loaded protocol_v2 again
+    legacy map; the returned ProtocolSwitch moves to v2 when the host asks (main loop)."""
     if cfg.address is None:
         log.error("no valid I2C address configured: not joining the bus")
         return None
@@ -140,8 +138,6 @@ def boot(machine, config_path=CONFIG_FILE):
 def run(config_path=CONFIG_FILE):
     import machine
     import time
-
-    from .debug import DebugConsole, UsbStdio
 
     core, cfg, log = boot(machine, config_path)
     switch = join_bus(machine, core, cfg, log)

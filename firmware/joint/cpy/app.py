@@ -5,8 +5,11 @@ polled by the loop (cp_target.py).
 The loop serves the bus before and after the core's iteration and while it waits for the next
 millisecond tick (supervisor.ticks_ms: a small int, where time.monotonic_ns allocates a long int
 every call), so the host waits at most about one core iteration for a reply. The garbage
-collector is the loop's: automatic collection is off, and the heap is collected when it runs low
-once the bus has been quiet for a while (hosts poll in bursts), or at once when it is nearly full.
+collector is the loop's: automatic collection is off, and the heap is collected once the bus has
+been quiet for a while (hosts poll in bursts) after `every` iterations, at once after twice that.
+`every` is set at the start from the allocation of the first CALIBRATE iterations, so that two
+periods use at most half the heap free after a collection (gc.mem_free walks the whole heap, about
+as long as a core iteration: it is read at the start only).
 CircuitPython lacks what MicroPython gives the core (native and viper code, time.ticks_*): the
 same core runs as bytecode on the CPython clock of clock.py (docs/circuitpython.md has the costs).
 """
@@ -17,10 +20,10 @@ from ..debug import DebugConsole
 from ..settings import CONFIG_FILE
 
 SLOW_EVERY_MASK = 3  # the console: every 4th iteration
-LOW_HEAP = 24 * 1024  # collect below this much free heap once the bus is quiet ...
-QUIET_MS = 3  # ... for this many millisecond ticks
+QUIET_MS = 3  # a collection waits for this many millisecond ticks without a request ...
+CALIBRATE = 8  # iterations whose allocation sets how often the loop collects
+HEAP_SHARE = 4  # ... `every` iterations use at most this share of the free heap (forced at 2x)
 TICKS_MASK = 0x1FFFFFFF  # supervisor.ticks_ms wraps at 2**29
-CRITICAL_HEAP = 8 * 1024  # or at once below this
 PROTOCOL_V2 = 2  # protocol_v2.PROTOCOL_V2, without loading the v2 spec
 
 
@@ -111,8 +114,8 @@ class LoopMeter:
         self.allocated += gc.mem_alloc() - self.base
         start = ticks_us()
         gc.collect()
-        self.base = gc.mem_alloc()
         spent = ticks_us() - start
+        self.base = gc.mem_alloc()
         self.collections += 1
         self.collect_us += spent
         if spent > self.collect_max_us:
@@ -158,6 +161,9 @@ def run(config_path=CONFIG_FILE, meter_every=0):
     turn = 0
     quiet_since = ticks_ms()
     started = ticks_us()
+    every = 0  # iterations between collections: set after CALIBRATE iterations
+    since = 0
+    free = gc.mem_free()
     try:
         while True:
             tick = ticks_ms()
@@ -177,8 +183,15 @@ def run(config_path=CONFIG_FILE, meter_every=0):
                     log.error("debug console: %r" % (exc,))
             if meter is not None:
                 meter.add(ticks_us() - start)
-            free = gc.mem_free()
-            if free < CRITICAL_HEAP or (free < LOW_HEAP and ((tick - quiet_since) & TICKS_MASK) >= QUIET_MS):
+            since += 1
+            if not every:
+                if since == CALIBRATE:
+                    every, per_iteration = _period(free, gc)
+                    log.info("collecting every %d iterations (%d bytes allocated per iteration)"
+                             % (every, per_iteration))
+                    since = every  # collect at the next quiet moment
+            elif since >= every and (since >= 2 * every or ((tick - quiet_since) & TICKS_MASK) >= QUIET_MS):
+                since = 0
                 if meter is None:
                     gc.collect()
                 else:
@@ -194,6 +207,13 @@ def run(config_path=CONFIG_FILE, meter_every=0):
     except KeyboardInterrupt:
         mp_app.shut_down(core, link, log)
         raise
+
+
+def _period(free_before, gc):
+    """Iterations between collections, from the allocation of the first CALIBRATE iterations."""
+    per_iteration = (free_before - gc.mem_free()) // CALIBRATE + 1
+    gc.collect()
+    return max(1, gc.mem_free() // (HEAP_SHARE * per_iteration)), per_iteration
 
 
 def _nothing():
