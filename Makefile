@@ -33,7 +33,7 @@ bench-safety: $(STAMP)
 	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/python bench/safety.py
 
 # Re-derive the joints' tracking stall-detector constants and quick-stop deceleration from the
-# simulated arm (bench/derive_safety.py) and store them in firmware/joint/configs/J*.json.
+# simulated arm (bench/derive_safety.py) and store them in firmware/joint/config/J*.json.
 derive-safety: $(STAMP)
 	$(BIN)/python bench/derive_safety.py --write
 

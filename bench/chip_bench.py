@@ -21,7 +21,7 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT)]
 
 from bioscara import flash  # noqa: E402
-from bioscara.firmware.debug_commands import TRACE_COLUMNS  # noqa: E402
+from bioscara.firmware.console.debug_commands import TRACE_COLUMNS  # noqa: E402
 from chip import fsimage  # noqa: E402
 from chip.board import EmulatedPico  # noqa: E402
 from chip.joint_devices import JOINT_DEVICES_PLUGIN  # noqa: E402
@@ -52,7 +52,9 @@ def bench_image(directory: pathlib.Path) -> pathlib.Path:
 # is measured and added back to the heap figure; then the joint's own app.run() is timed.
 LOOP_SCRIPT = """
 import gc
-from joint import app, core, debug
+from joint import app
+from joint.core import controller as core
+from joint.console import debug
 gc.collect()
 _before = gc.mem_free()
 import chip_loop

@@ -34,8 +34,8 @@ from typing import Any
 ROOT = __import__("pathlib").Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT)]
 
-from bioscara.firmware import protocol as P  # noqa: E402
-from bioscara.firmware import protocol_v2 as V  # noqa: E402
+from bioscara.firmware.spec import protocol as P  # noqa: E402
+from bioscara.firmware.spec import protocol_v2 as V  # noqa: E402
 from chip.board import EmulatedPico  # noqa: E402
 from chip.i2c import JointBusClient, Transaction, joint_bus_plugin  # noqa: E402
 

@@ -19,7 +19,7 @@ import tempfile
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT / "firmware")]
 
-from joint import protocol as P  # noqa: E402
+from joint.spec import protocol as P  # noqa: E402
 
 TABLE = ROOT / "firmware" / "joint" / "sim" / "chip_costs.json"
 

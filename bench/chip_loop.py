@@ -25,8 +25,10 @@ from array import array
 
 from micropython import const
 
-from joint import app, core, debug
-from joint.protocol import ENABLESTALLGUARD, SETUP  # ints: holding the module would keep the spec the board drops after boot
+from joint import app
+from joint.core import controller as core
+from joint.console import debug
+from joint.spec.protocol import ENABLESTALLGUARD, SETUP  # ints: holding the module would keep the spec the board drops after boot
 
 ALLOC_CALLS = const(40)
 SETTLE_CALLS = const(200)

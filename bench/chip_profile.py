@@ -21,15 +21,15 @@ import chip_bench  # noqa: E402
 
 # (module, class, method, arity after self)
 TARGETS = [
-    ("joint.core", "JointController", "service", 0),
-    ("joint.core", "JointController", "_apply_next", 0),
-    ("joint.core", "JointController", "_step_task", 1),
-    ("joint.core", "JointController", "_check_stall", 0),
-    ("joint.core", "JointController", "_check_tracking", 0),
-    ("joint.core", "JointController", "_check_deadman", 0),
-    ("joint.core", "JointController", "_host_angle", 0),
-    ("joint.core", "JointController", "_encoder_usteps", 0),
-    ("joint.core", "JointController", "_motion_active", 0),
+    ("joint.core.controller", "JointController", "service", 0),
+    ("joint.core.controller", "JointController", "_apply_next", 0),
+    ("joint.core.controller", "JointController", "_step_task", 1),
+    ("joint.core.controller", "JointController", "_check_stall", 0),
+    ("joint.core.controller", "JointController", "_check_tracking", 0),
+    ("joint.core.controller", "JointController", "_check_deadman", 0),
+    ("joint.core.controller", "JointController", "_host_angle", 0),
+    ("joint.core.controller", "JointController", "_encoder_usteps", 0),
+    ("joint.core.controller", "JointController", "_motion_active", 0),
     ("joint.pico.motor", "PicoStepper", "update", 0),
     ("joint.pico.motor", "PicoStepper", "encoder_rpm", 0),
     ("joint.pico.motor", "PicoStepper", "driver_rpm", 0),
@@ -38,9 +38,9 @@ TARGETS = [
     ("joint.pico.motor", "PicoStepper", "field_position", 0),
     ("joint.pico.motor", "PicoStepper", "position_reached", 0),
     ("joint.pico.as5600", "AS5600", "sample", 2),
-    ("joint.tracking", "TrackingDetector", "update", 2),
-    ("joint.v2", "ProtocolSwitch", "service", 0),
-    ("joint.debug", "DebugConsole", "poll", 0),
+    ("joint.detect.tracking", "TrackingDetector", "update", 2),
+    ("joint.links.memmap_v2", "ProtocolSwitch", "service", 0),
+    ("joint.console.debug", "DebugConsole", "poll", 0),
 ]
 
 PROFILER = '''
@@ -76,8 +76,10 @@ class _Cal:
 
 RUN = '''
 import gc, time, sys
-from joint import app, core, debug
-from joint import protocol as P
+from joint import app
+from joint.core import controller as core
+from joint.console import debug
+from joint.spec import protocol as P
 {imports}
 exec(open("/prof.py").read())
 names = {names!r}
@@ -138,7 +140,7 @@ core, cfg, log = app.boot(machine)
 gc.collect(); free = gc.mem_free()
 print("%-24s %6d bytes" % ("app.boot()", last - free)); last = free
 switch = app.join_bus(machine, core, cfg, log)
-from joint.debug import DebugConsole, UsbStdio
+from joint.console.debug import DebugConsole, UsbStdio
 stdio = UsbStdio()
 d = DebugConsole(core, stdio.read, stdio.write)
 gc.collect(); free = gc.mem_free()
@@ -149,22 +151,23 @@ micropython.mem_info()
 micropython.qstr_info()
 '''
 
-MODULES = ["joint.emitters", "joint.fixed", "joint.protocol_v2", "joint.protocol", "joint.irq",
-           "joint.stall",
-           "joint.tracking", "joint.homing", "joint.supervise", "joint.handlers", "joint.tasks",
-           "joint.loop", "joint.version", "joint.regtable", "joint.core", "joint.settings", "joint.config", "joint.clock", "joint.log",
-           "joint.hal", "joint.tickramp", "joint.velocity", "joint.pico.tmc2209", "joint.pico.as5600",
-           "joint.pico.stepgen", "joint.pico.motor", "joint.i2c_target",
-           "joint.v2", "joint.debug", "joint.app"]
+MODULES = ["joint.micro", "joint.motion.fixed", "joint.spec.protocol_v2", "joint.spec.protocol", "joint.core.irq",
+           "joint.detect.stall",
+           "joint.detect.tracking", "joint.detect.homing", "joint.core.supervise", "joint.core.handlers", "joint.core.tasks",
+           "joint.core.loop", "joint.spec.version", "joint.spec.regtable", "joint.core.controller", "joint.config.settings", "joint.config.schema", "joint.core.clock", "joint.console.log",
+           "joint.motion.hal", "joint.motion.tickramp", "joint.motion.velocity", "joint.pico.tmc2209", "joint.pico.as5600",
+           "joint.pico.stepgen", "joint.pico.motor", "joint.links.i2c_target",
+           "joint.links.memmap_v2", "joint.console.debug", "joint.app"]
 
 
 # The main loop's parts timed one after another, on a joint turning at 30 rpm, no host traffic
 # (no IRQ in the figures): mean microseconds per iteration of each part.
 PARTS = '''
 import gc, time, machine
-from joint import app, protocol as P
-from joint.debug import DebugConsole, UsbStdio
-from joint.fixed import store_q
+from joint import app
+from joint.spec import protocol as P
+from joint.console.debug import DebugConsole, UsbStdio
+from joint.motion.fixed import store_q
 core, cfg, log = app.boot(machine)
 switch = app.join_bus(machine, core, cfg, log)
 stdio = UsbStdio()
@@ -220,8 +223,10 @@ print("driver_rpm", hal.driver_rpm(), "flags", core.flags)
 # Which service() calls allocate on the chip (the host cycling): bytes, and what the call did.
 ALLOC = '''
 import gc, time
-from joint import app, core, debug
-from joint import protocol as P
+from joint import app
+from joint.core import controller as core
+from joint.console import debug
+from joint.spec import protocol as P
 _service = core.JointController.service
 _SETUP = bytearray((P.SETUP, 30, 10, 0, 0))
 log = []

@@ -30,7 +30,7 @@ joint stops at top speed without losing position (no pole slip in the simulator)
 times 0.8.
 
     python bench/derive_safety.py            # print the constants
-    python bench/derive_safety.py --write    # and store them in firmware/joint/configs/J*.json
+    python bench/derive_safety.py --write    # and store them in firmware/joint/config/J*.json
 """
 
 import json
@@ -45,10 +45,10 @@ sys.path[:0] = [os.path.join(HERE, "..", "firmware"), os.path.join(HERE, "..", "
 import numpy as np  # noqa: E402
 import safety as bench  # noqa: E402 -- the benchmark's free motion, to derive on it too
 from harness import SimRig  # noqa: E402
-from joint.fixed import STEPS_Q, to_q  # noqa: E402
+from joint.motion.fixed import STEPS_Q, to_q  # noqa: E402
 from joint.sim import mechanics  # noqa: E402
 from joint.sim.chip import ChipCosts  # noqa: E402
-from joint.tracking import TrackingDetector  # noqa: E402
+from joint.detect.tracking import TrackingDetector  # noqa: E402
 
 # The arm's configured motion (host/bioscara/data/default.toml) on the motor side.
 JOINTS = {  # top speed rpm, acceleration motor deg/s^2, drive current %, stall sensitivity
@@ -306,7 +306,7 @@ def main(argv):
                   % (joint, len(losses[joint]), ", ".join(losses[joint])))
     if "--write" in argv:
         for joint, values in results.items():
-            path = os.path.join(HERE, "..", "firmware", "joint", "configs", joint + ".json")
+            path = os.path.join(HERE, "..", "firmware", "joint", "config", joint + ".json")
             with open(path) as f:
                 cfg = json.load(f)
             cfg["stop_deceleration"] = values["stop_deceleration"]

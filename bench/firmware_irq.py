@@ -6,10 +6,11 @@ a do-nothing handler driven the same way is subtracted. Prints one `name value` 
 
 import time
 
-from joint import config, protocol as P
-from joint.core import JointController
-from joint.i2c_target import I2CTargetAdapter
-from joint.log import Logger
+from joint.config import schema as config
+from joint.spec import protocol as P
+from joint.core.controller import JointController
+from joint.links.i2c_target import I2CTargetAdapter
+from joint.console.log import Logger
 from joint.sim.clock import VirtualClock
 from harness import RecordingMotor
 import simspeed

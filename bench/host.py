@@ -100,7 +100,7 @@ def communicator_realtime(rate: float, seconds: float = 3.0) -> dict[str, float]
 def bridge_throughput(transactions: int = 2000) -> dict[str, float]:
     """PING transactions per second through the HIL bridge framing on the simulator's pty."""
     from bioscara.bus import open_bus
-    from bioscara.firmware import protocol as P
+    from bioscara.firmware.spec import protocol as P
     from bioscara.hardware import sim_joint_specs
     from bioscara.sim_server import SimServer
 

@@ -49,15 +49,15 @@ from typing import Iterable
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT / "firmware")]
 
-from joint import config as joint_config  # noqa: E402
-from joint import protocol as P  # noqa: E402
+from joint.config import schema as joint_config  # noqa: E402
+from joint.core.supervise import DETECTOR_NAMES as DETECTORS  # noqa: E402
+from joint.spec import protocol as P  # noqa: E402
 from joint.sim import mechanics as M  # noqa: E402
 from joint.sim.bus import SimJointBus, default_costs  # noqa: E402
 from joint.sim.clock import VirtualClock  # noqa: E402
 from joint.sim.joint import SimJoint  # noqa: E402
 from joint.sim.stepper import SimStepper  # noqa: E402
 
-DETECTORS = ("original", "tracking")
 JOINTS = ("J1", "J2", "J3", "J4")
 # Shipped configuration (host/bioscara/data/default.toml), motor side: reduction magnitude,
 # current %, stall threshold, max acceleration (joint units/s^2), max velocity, homing
@@ -99,7 +99,7 @@ class Rig:
             joint, payload_kg, "nominal" if noise == "as5600" else noise, encoder))
         self.stepper.set_end_stops(low_deg, high_deg)
         # The shipped per-joint config (its stall and homing constants), on the simulated motor.
-        cfg = joint_config.load(str(ROOT / "firmware" / "joint" / "configs" / f"{joint}.json"))
+        cfg = joint_config.load(str(ROOT / "firmware" / "joint" / "config" / f"{joint}.json"))
         assert cfg.valid, cfg.errors
         cfg.motor = {"backend": "sim"}
         if detector != "original" and not self._config_detector(cfg, detector):

@@ -3,7 +3,7 @@
 MicroPython-compatible, so bench/run.py measures it under both interpreters with the same code.
 """
 
-from joint import protocol as P
+from joint.spec import protocol as P
 from joint.sim.clock import VirtualClock
 from joint.sim.joint import make_joint
 from joint.sim.stepper import SimStepper

@@ -12,12 +12,7 @@ Hardware is injected, so the same code runs on the board, in the tests and in th
 """
 
 from . import framing as F
-
-try:
-    from micropython import const
-except ImportError:
-    def const(value):
-        return value
+from .framing import const
 
 VERSION = (1, 0, 0)
 _RX_CHUNK = const(64)

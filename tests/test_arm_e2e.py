@@ -13,7 +13,7 @@ from bioscara.bus.sim import SimBus
 from bioscara.communicator import Communicator
 from bioscara.config import ArmConfig
 from bioscara.errors import CommError, NotEnabledError, NotHomedError, StalledError
-from bioscara.firmware import protocol as P
+from bioscara.firmware.spec import protocol as P
 from bioscara.firmware.sim import mechanics
 from bioscara.gripper import MockGripper
 from bioscara.hardware import open_arm_bus, sim_joint_specs

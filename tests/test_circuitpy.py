@@ -39,7 +39,7 @@ def run_cli(*args: str) -> tuple[int, dict]:
 
 def test_the_image_is_the_firmware_with_only_the_emitter_lines_changed() -> None:
     image = circuitpy.build_image("J1")
-    sources = flash.firmware_sources("circuitpython")
+    sources = flash.firmware_sources(circuitpy.MANIFEST)
     assert image.files["/code.py"].endswith(b"from joint.cpy import app\n\napp.run()\n")
     assert json.loads(image.files["/joint_config.json"])["joint"] == "J1"
     assert {p for p in image.files if p.startswith("/lib/")} == {f"/lib/{n[:-3]}.mpy" for n in sources}
@@ -50,6 +50,7 @@ def test_the_image_is_the_firmware_with_only_the_emitter_lines_changed() -> None
     assert changed.count(b"\n") == stepgen.count(b"\n")  # tracebacks keep their line numbers
     assert changed.replace(b"# @micropython.viper (bytecode on CircuitPython)", b"@micropython.viper") == stepgen
     assert "cpy/app.py" not in " ".join(flash.firmware_sources()), "MicroPython boards do not get it"
+    assert "joint/links/cp_target.py" in sources and "joint/sim/joint.py" not in sources
 
 
 def test_flash_copies_verifies_and_a_second_run_changes_nothing(drive: Path) -> None:
@@ -67,10 +68,10 @@ def test_flash_copies_verifies_and_a_second_run_changes_nothing(drive: Path) -> 
 def test_a_stale_file_goes_and_a_changed_one_is_rewritten(drive: Path) -> None:
     circuitpy.apply(circuitpy.plan(drive, "J1"))
     (drive / "lib/joint/old.mpy").write_bytes(b"C\x06gone")
-    (drive / "lib/joint/core.mpy").write_bytes(b"damaged")
+    (drive / "lib/joint/app.mpy").write_bytes(b"damaged")
     plan = circuitpy.plan(drive, "J2")
     assert plan.stale == ("/lib/joint/old.mpy",)
-    assert set(plan.updated) == {"/lib/joint/core.mpy", "/joint_config.json"}
+    assert set(plan.updated) == {"/lib/joint/app.mpy", "/joint_config.json"}
     circuitpy.apply(plan)
     assert not (drive / "lib/joint/old.mpy").exists()
     assert json.loads((drive / "joint_config.json").read_bytes())["joint"] == "J2"
@@ -79,8 +80,8 @@ def test_a_stale_file_goes_and_a_changed_one_is_rewritten(drive: Path) -> None:
 def test_verification_names_a_file_that_did_not_land(drive: Path) -> None:
     plan = circuitpy.plan(drive, "J1")
     circuitpy.apply(plan)
-    (drive / "lib/joint/irq.mpy").write_bytes(b"C\x06short")
-    with pytest.raises(FlashError, match=r"/lib/joint/irq.mpy on .* has SHA-256"):
+    (drive / "lib/joint/core/irq.mpy").write_bytes(b"C\x06short")
+    with pytest.raises(FlashError, match=r"/lib/joint/core/irq.mpy on .* has SHA-256"):
         circuitpy.verify(plan)
 
 

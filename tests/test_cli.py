@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from bioscara.firmware import protocol as P
+from bioscara.firmware.spec import protocol as P
 
 import csv
 import json

@@ -12,7 +12,7 @@ from bioscara import motion
 from bioscara.arm import Arm
 from bioscara.bus.sim import SimBus
 from bioscara.communicator import Communicator
-from bioscara.firmware import protocol as P
+from bioscara.firmware.spec import protocol as P
 
 
 def _transaction_s(bus: SimBus, name: str, command: bool) -> float:

@@ -14,7 +14,7 @@ from bioscara.bus import open_bus
 from bioscara.cli import main
 from bioscara.config import load_config
 from bioscara.console import CSV_HEADER, JointConsole, plot
-from bioscara.firmware import protocol as P
+from bioscara.firmware.spec import protocol as P
 from bioscara.hardware import sim_joint_specs
 from bioscara.joint import Joint
 from bioscara.sim_server import Pty, SimServer

@@ -38,7 +38,7 @@ def test_every_firmware_test_module_is_covered():
 
 BOARD_STDIO = """
 import micropython
-from joint.debug import UsbStdio
+from joint.console.debug import UsbStdio
 
 
 def poll_many(stdio, buf):

@@ -27,8 +27,9 @@ import pytest
 
 from bioscara import cli, flash, mpboard
 from bioscara.config import load_config
-from bioscara.firmware.protocol import PROTOCOL_VERSION, SPEC_HASH
-from bioscara.firmware.version import FIRMWARE_VERSION
+from bioscara.errors import ConfigError
+from bioscara.firmware.spec.protocol import PROTOCOL_VERSION, SPEC_HASH
+from bioscara.firmware.spec.version import FIRMWARE_VERSION
 from bioscara.hardware import open_arm_bus
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -99,14 +100,11 @@ def unix_port_info() -> mpboard.BoardInfo:
 
 # ---- what goes onto the board ----
 
-def test_the_joint_package_is_deployed_precompiled_without_sim_configs_or_tests():
+def test_the_joint_package_is_deployed_precompiled_exactly_as_the_pico_manifest_says():
     board = FakeBoard()
     plan = flashed(board)
     package = sorted(p for p in board.files if p.startswith("/joint/"))
-    expected = sorted("/joint/" + str(p.relative_to(ROOT / "firmware" / "joint").with_suffix(".mpy"))
-                      for p in (ROOT / "firmware" / "joint").rglob("*.py")
-                      if not {"sim", "configs", "tests", "__pycache__"} & set(p.parts) and p.name != "board_main.py")
-    assert package == expected
+    assert package == sorted("/joint/" + name[:-3] + ".mpy" for name in flash.board_files("pico"))
     assert "/joint/__init__.mpy" in package and "/joint/pico/motor.mpy" in package
     assert plan.image.compiled and "armv6m" in plan.image.build
     native = set()
@@ -121,6 +119,40 @@ def test_the_joint_package_is_deployed_precompiled_without_sim_configs_or_tests(
     assert board.log[-3:] == [("import", "joint.app"), ("write", "/main.py"), ("reset", "")]
 
 
+def _imports(name: str, source: bytes) -> set[str]:
+    """The firmware files `name` (a path in the joint package) imports relatively, resolved."""
+    import ast
+
+    package = name.split("/")[:-1]
+    found = set()
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.ImportFrom) and node.level:
+            base = package[:len(package) - node.level + 1] + (node.module.split(".") if node.module else [])
+            targets = ([base] if node.module else []) + [base + [alias.name] for alias in node.names]
+            for target in targets:
+                stem = "/".join(target)
+                found.update(f for f in (stem + ".py", stem + "/__init__.py") if (ROOT / "firmware" / "joint" / f).is_file())
+    return found
+
+
+@pytest.mark.parametrize("board", flash.boards())
+def test_a_board_manifest_is_closed_under_import_and_holds_no_simulator_code(board):
+    files = set(flash.board_files(board))
+    assert not {f for f in files if f.startswith(("sim/", "boards/", "tests/"))}
+    for name in files:
+        source = (ROOT / "firmware" / "joint" / name).read_bytes()
+        missing = _imports(name, source) - files
+        assert not missing, f"{board}: {name} imports {sorted(missing)}, which the manifest leaves out"
+    if board == "pico":
+        assert "links/cp_target.py" not in files  # CircuitPython's link
+        assert {"app.py", "pico/motor.py", "links/memmap_v2.py", "core/controller.py"} <= files
+
+
+def test_an_unknown_board_manifest_is_a_clear_error():
+    with pytest.raises(ConfigError, match="no board manifest 'nano'; boards: pico, pico_circuitpython"):
+        flash.board_files("nano")
+
+
 def test_main_py_is_the_firmware_entry_point_as_source():
     board = FakeBoard()
     flashed(board)
@@ -131,10 +163,10 @@ def test_main_py_is_the_firmware_entry_point_as_source():
 def test_the_chosen_joint_config_becomes_joint_config_json(joint):
     board = FakeBoard()
     plan = flashed(board, joint)
-    shipped = (ROOT / "firmware" / "joint" / "configs" / f"{joint}.json").read_bytes()
+    shipped = (ROOT / "firmware" / "joint" / "config" / f"{joint}.json").read_bytes()
     assert board.files["/joint_config.json"] == shipped
     assert plan.image.address == json.loads(shipped)["address"]
-    assert not any("J1.json" in p or "configs" in p for p in board.files)
+    assert not any(p.endswith(".json") and p != "/joint_config.json" for p in board.files)
 
 
 def test_the_firmware_leaves_ctrl_c_working_so_the_board_stays_flashable():
@@ -146,7 +178,7 @@ def test_the_firmware_leaves_ctrl_c_working_so_the_board_stays_flashable():
 def test_the_small_int_width_of_the_board_is_compiled_in():
     board = FakeBoard(replace(RP2, small_int_bits=30))
     flashed(board)
-    assert board.files["/joint/core.mpy"][3] == 30
+    assert board.files["/joint/core/controller.mpy"][3] == 30
 
 
 @pytest.mark.parametrize("info, why", [
@@ -157,7 +189,7 @@ def test_source_is_deployed_when_mpy_cross_cannot_target_the_board(info, why):
     board = FakeBoard(info)
     plan = flashed(board)
     assert not plan.image.compiled and why in plan.image.build
-    assert board.files["/joint/core.py"] == (ROOT / "firmware" / "joint" / "core.py").read_bytes()
+    assert board.files["/joint/core/controller.py"] == (ROOT / "firmware" / "joint" / "core" / "controller.py").read_bytes()
     assert not any(p.endswith(".mpy") for p in board.files)
 
 
@@ -183,19 +215,19 @@ def test_a_second_run_copies_nothing():
 def test_only_changed_files_are_copied_and_main_py_is_written_last():
     board = FakeBoard()
     flashed(board)
-    board.files["/joint/core.mpy"] = b"M\x06old"
+    board.files["/joint/core/controller.mpy"] = b"M\x06old"
     board.log.clear()
     plan = flashed(board)
-    assert plan.updated == ("/joint/core.mpy",)
+    assert plan.updated == ("/joint/core/controller.mpy",)
     # main.py is away until the rest is verified and imports, so a failed flash boots to the REPL
-    assert board.log == [("remove", "/main.py"), ("write", "/joint/core.mpy"), ("import", "joint.app"),
+    assert board.log == [("remove", "/main.py"), ("write", "/joint/core/controller.mpy"), ("import", "joint.app"),
                          ("write", "/main.py"), ("reset", "")]
 
 
 def test_a_hash_mismatch_after_copying_names_the_file():
     board = FakeBoard()
-    board.corrupt.add("/joint/stall.mpy")
-    with pytest.raises(mpboard.FlashError, match="verification failed: /joint/stall.mpy on the board has SHA-256"):
+    board.corrupt.add("/joint/detect/stall.mpy")
+    with pytest.raises(mpboard.FlashError, match="verification failed: /joint/detect/stall.mpy on the board has SHA-256"):
         flashed(board)
     assert "/main.py" not in board.files and ("reset", "") not in board.log
 
@@ -209,10 +241,10 @@ def test_firmware_that_does_not_import_on_the_board_is_not_started():
 
 
 def test_stale_files_in_joint_are_removed_and_nothing_else_is_touched():
-    board = FakeBoard(files={"/joint/core.py": b"old source shadows core.mpy", "/joint/sim/bus.mpy": b"M",
+    board = FakeBoard(files={"/joint/core/controller.py": b"old source shadows controller.mpy", "/joint/sim/bus.mpy": b"M",
                              "/joint/gone.mpy": b"M", "/boot.py": b"# mine", "/lib/other.py": b"x = 1"})
     plan = flashed(board)
-    assert plan.stale == ("/joint/core.py", "/joint/gone.mpy", "/joint/sim/bus.mpy")
+    assert plan.stale == ("/joint/core/controller.py", "/joint/gone.mpy", "/joint/sim/bus.mpy")
     assert not set(plan.stale) & set(board.files)
     assert board.files["/boot.py"] == b"# mine" and board.files["/lib/other.py"] == b"x = 1"
     assert flash.report(plan, dry_run=False, identity=None)["removed"] == list(plan.stale)
@@ -339,7 +371,7 @@ def test_cli_human_report_says_the_version_check_was_skipped(capsys, monkeypatch
     text = " ".join(out.split())
     assert code == 0
     assert f"firmware {flash.FIRMWARE} for j4 (I2C 0x14), .mpy v6 (armv6m" in text
-    assert "would be" not in text and "added /joint/core.mpy" in text
+    assert "would be" not in text and "added /joint/core/controller.mpy" in text
     assert "version check skipped" in text
 
 
@@ -364,7 +396,7 @@ def test_a_dry_run_needs_no_board(capsys, monkeypatch, tmp_path):
     assert cli.main(["flash", "--joint", "j2", "--dry-run"]) == 0
     text = capsys.readouterr().out
     assert "no board given" in text and "for j2 (I2C 0x12)" in text and "J2" not in text
-    assert f"/joint/core.mpy {len(files['/joint/core.mpy']):,} B" in " ".join(text.split())
+    assert f"/joint/core/controller.mpy {len(files['/joint/core/controller.mpy']):,} B" in " ".join(text.split())
     bad = tmp_path / "bad.json"
     bad.write_text(json.dumps(dict(json.loads(flash.joint_config("J2")[0]), address=200)))
     assert cli.main(["flash", "--joint-config", str(bad), "--dry-run"]) == 2
@@ -409,9 +441,9 @@ def test_the_deployed_firmware_loads_on_the_micropython_unix_port(tmp_path):
         target.parent.mkdir(parents=True, exist_ok=True)
         target.write_bytes(data)
     assert list(tmp_path.rglob("*.py")) == [tmp_path / "main.py"]
-    code = ("import joint.app, joint.config, joint.version\n"
-            "cfg = joint.config.load()\n"
-            "print(joint.app.__file__, cfg.joint, cfg.valid, joint.version.FIRMWARE_VERSION)")
+    code = ("import joint.app, joint.config.schema, joint.spec.version\n"
+            "cfg = joint.config.schema.load()\n"
+            "print(joint.app.__file__, cfg.joint, cfg.valid, joint.spec.version.FIRMWARE_VERSION)")
     result = subprocess.run([micropython(), "-c", code], capture_output=True, text=True, cwd=tmp_path,
                             env=dict(os.environ, MICROPYPATH=str(tmp_path)), timeout=60)
     assert result.returncode == 0, result.stdout + result.stderr

@@ -11,7 +11,7 @@ from bioscara.config import ArmConfig
 from bioscara.errors import (
     IncorrectStateError, InvalidArgumentError, NotEnabledError, NotHomedError, NotInitError,
 )
-from bioscara.firmware import protocol as P
+from bioscara.firmware.spec import protocol as P
 from bioscara.joint import BlockingCommand, Joint, WaitTimeoutError
 
 from conftest import Recorder

@@ -8,12 +8,12 @@ import shutil
 import subprocess
 import sys
 
-import bioscara.firmware.protocol as host_protocol
+import bioscara.firmware.spec.protocol as host_protocol
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 
 DUMP = """
-from joint import protocol as P
+from joint.spec import protocol as P
 print(P.SPEC_HASH)
 for r in P.REGISTERS:
     print(r.addr, r.name, r.supported, r.blocking, r.sets, r.clears, r.zero_sets, r.wfmt, r.rfmt,
@@ -25,12 +25,12 @@ def _host_dump() -> str:
     namespace: dict[str, object] = {}
     lines: list[str] = []
     namespace["print"] = lambda *args: lines.append(" ".join(str(a) for a in args))
-    exec(DUMP.replace("from joint import protocol as P", "import bioscara.firmware.protocol as P"), namespace)
+    exec(DUMP.replace("from joint.spec import protocol as P", "import bioscara.firmware.spec.protocol as P"), namespace)
     return "\n".join(lines)
 
 
 def test_the_host_imports_the_firmware_file_itself() -> None:
-    assert pathlib.Path(host_protocol.__file__).resolve() == ROOT / "firmware" / "joint" / "protocol.py"
+    assert pathlib.Path(host_protocol.__file__).resolve() == ROOT / "firmware" / "joint" / "spec" / "protocol.py"
 
 
 def test_micropython_and_cpython_see_the_same_table_and_hash() -> None:

@@ -10,7 +10,7 @@ import pytest
 from bioscara.arm import Arm
 from bioscara.bus.sim import SimBus
 from bioscara.errors import InvalidArgumentError, NotHomedError
-from bioscara.firmware import protocol as P
+from bioscara.firmware.spec import protocol as P
 from bioscara.joint import LIMIT_SLACK_DEG
 from conftest import Recorder
 

@@ -24,7 +24,7 @@ from bioscara.bus import open_bus
 from bioscara.bus.serial import SerialBus
 from bioscara.config import ArmConfig, load_config
 from bioscara.errors import CommError, ConfigError
-from bioscara.firmware import protocol as P
+from bioscara.firmware.spec import protocol as P
 from bioscara.hardware import sim_joint_specs
 from bioscara.hil_bridge import framing as F
 from bioscara.joint import Joint

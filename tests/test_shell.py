@@ -19,7 +19,7 @@ from bioscara.bus.sim import SimBus
 from bioscara.cli import main
 from bioscara.commands.shell import Context, _completer, interactive
 from bioscara.config import ArmConfig
-from bioscara.firmware import protocol as P
+from bioscara.firmware.spec import protocol as P
 from bioscara.shell import Shell
 
 from conftest import Recorder

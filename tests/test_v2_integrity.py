@@ -23,7 +23,7 @@ def test_crc8_catches_every_error_of_up_to_three_bits_in_both_blocks() -> None:
 
 def test_the_chip_comparison_vectors_are_deterministic_and_cover_each_verdict() -> None:
     import v2_vectors
-    from bioscara.firmware import protocol_v2 as V
+    from bioscara.firmware.spec import protocol_v2 as V
     vectors = v2_vectors.sim_vectors()
     again = v2_vectors.sim_vectors()
     assert v2_vectors.compare(vectors, [v.reply for v in again]) == []

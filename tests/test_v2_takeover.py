@@ -8,8 +8,8 @@ from __future__ import annotations
 import pytest
 
 from bioscara.bus.sim import SimBus, SimJointSpec
-from bioscara.firmware import protocol as P
-from bioscara.firmware import protocol_v2 as V
+from bioscara.firmware.spec import protocol as P
+from bioscara.firmware.spec import protocol_v2 as V
 from bioscara.joint import Joint
 
 J1 = SimJointSpec("J1", 0x11, 35.0, -3.04647, 3.04647, 0.0)

@@ -16,7 +16,7 @@ from bioscara.bus.base import Bus
 from bioscara.bus.blinka import BlinkaBus
 from bioscara.bus.sim import SimBus, SimJointSpec
 from bioscara.bus.smbus import SMBusBus
-from bioscara.firmware import protocol_v2 as V
+from bioscara.firmware.spec import protocol_v2 as V
 from bioscara.joint import Joint
 from bioscara.sim_server import SimServer
 
@@ -129,7 +129,7 @@ def test_auto_keeps_a_joint_that_cannot_switch_on_legacy_and_the_arm_cycles_both
     from bioscara.arm import Arm
     from bioscara.communicator import Communicator
     from bioscara.errors import CommError
-    from bioscara.firmware import protocol as P
+    from bioscara.firmware.spec import protocol as P
     bus.joint(0x11).core._handlers[P.PROTOCOL] = lambda q, off: None  # as on CircuitPython: no mem mode
     arm = Arm(config, bus, "auto")
     arm.configure()

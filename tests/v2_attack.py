@@ -14,8 +14,8 @@ import random
 from dataclasses import dataclass, field
 
 from bioscara.bus.base import Bus
-from bioscara.firmware import protocol as P
-from bioscara.firmware import protocol_v2 as V
+from bioscara.firmware.spec import protocol as P
+from bioscara.firmware.spec import protocol_v2 as V
 from bioscara.v2link import V2Link
 
 from v2rig import V2Rig

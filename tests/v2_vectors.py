@@ -15,14 +15,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from bioscara.firmware import protocol as P
-from bioscara.firmware import protocol_v2 as V
+from bioscara.firmware.spec import protocol as P
+from bioscara.firmware.spec import protocol_v2 as V
 
 from v2rig import V2Rig
 
 
 # After a transaction that switches the protocol: the switch may start with a garbage
-# collection (firmware/joint/v2.py `_make_room`, about 20 ms on the chip).
+# collection (firmware/joint/links/memmap_v2.py `_make_room`, about 20 ms on the chip).
 SWITCH_MS = 60
 
 

@@ -5,21 +5,15 @@ hardware at import time. An invalid configuration or a motor backend that fails 
 the joint disabled, reporting why on the serial console, instead of crashing.
 """
 
-from .clock import MonotonicClock
-from .core import JointController
-from .debug import DebugConsole, UsbStdio
-from .i2c_target import I2CTargetAdapter
-from .log import Logger
-from .protocol_v2 import MEM_ADDRSIZE
-from .settings import CONFIG_FILE
-from .v2 import ProtocolSwitch
+from .core.clock import MonotonicClock
+from .core.controller import JointController
+from .console.debug import DebugConsole, UsbStdio
+from .links.i2c_target import I2CTargetAdapter
+from .console.log import Logger
+from .spec.protocol_v2 import MEM_ADDRSIZE
+from .config.settings import CONFIG_FILE
+from .links.memmap_v2 import ProtocolSwitch
 
-# RP2040 DW_apb_i2c IC_STATUS of I2C0/I2C1 and its SLV_ACTIVITY bit: set while a transaction
-# addressed to the target is in progress. The v2 swap waits for it to clear.
-_RP2040_IC_STATUS = (0x40044070, 0x40048070)
-_SLV_ACTIVITY = 0x40
-# The I2C0/I2C1 blocks: the legacy adapter sets the RX FIFO threshold and the RX_DONE mask there.
-_RP2040_I2C = (0x40044000, 0x40048000)
 _SLOW_EVERY_MASK = 3  # the console and the legacy protocol switch: every 4th main-loop iteration
 
 
@@ -33,7 +27,7 @@ def build_motor(cfg):
 def build(machine, config_path=CONFIG_FILE, clock=None, write=None, motor_builder=build_motor):
     """Load the configuration and create the controller; returns (core, cfg, log). `machine`
     None: no interrupt shares the core's state (CircuitPython polls its I2C target)."""
-    from . import config  # boot only (see _drop_boot_only)
+    from .config import schema as config  # boot only (see _drop_boot_only)
     cfg = config.load(config_path)
     log = Logger(cfg.joint or "joint", write=write)
     motor = None
@@ -52,8 +46,8 @@ def build(machine, config_path=CONFIG_FILE, clock=None, write=None, motor_builde
 # schema and checks, the Pico backend's defaults and validation, the register spec's objects, the
 # builders of the controller and its IRQ tables (about 28 KB of heap together). The running joint
 # keeps what it needs of them in settings.py's objects, regtable.RegisterTable and its own state.
-BOOT_ONLY = ("config", "core_init", "irq_init", "pico.motor_config", "pico.tmc2209_setup", "protocol",
-             "protocol_v2")
+BOOT_ONLY = ("config.schema", "core.controller_init", "core.irq_init", "pico.motor_config",
+             "pico.tmc2209_setup", "spec.protocol", "spec.protocol_v2")
 
 
 def _drop_boot_only():
@@ -83,10 +77,12 @@ def bus_activity_probe(machine, bus):
     activity bit; elsewhere none (always false: a torn state block is then caught by its CRC)."""
     mem32 = getattr(machine, "mem32", None)
     if _on_rp2040(machine):
-        status = _RP2040_IC_STATUS[bus]
+        from .pico import IC_STATUS, SLV_ACTIVITY, i2c_registers
+
+        status = i2c_registers(bus) + IC_STATUS
 
         def active():
-            return mem32[status] & _SLV_ACTIVITY
+            return mem32[status] & SLV_ACTIVITY
         return active
 
     def never():
@@ -109,7 +105,11 @@ def join_bus(machine, core, cfg, log):
         return machine.I2CTarget(i2c.bus, cfg.address, mem=mem, mem_addrsize=MEM_ADDRSIZE, **pins)
 
     probe = bus_activity_probe(machine, i2c.bus)
-    block = _RP2040_I2C[i2c.bus] if _on_rp2040(machine) else 0
+    # The legacy adapter sets the RX FIFO threshold and the RX_DONE mask in the target's I2C block.
+    block = 0
+    if _on_rp2040(machine):
+        from .pico import i2c_registers
+        block = i2c_registers(i2c.bus)
 
     def legacy_adapter(target):
         return I2CTargetAdapter(core, target, i2c.whole_reply_writes, probe, block)

@@ -1,11 +1,12 @@
 """Helpers shared by the firmware tests (CPython and the MicroPython unix port alike)."""
 
-from joint import config, protocol
-from joint.core import JointController
-from joint.fixed import ANGLE_Q, RPM_Q, to_q
-from joint.hal import MotorHAL
-from joint.i2c_target import I2CTargetAdapter
-from joint.log import Logger
+from joint.config import schema as config
+from joint.spec import protocol
+from joint.core.controller import JointController
+from joint.motion.fixed import ANGLE_Q, RPM_Q, to_q
+from joint.motion.hal import MotorHAL
+from joint.links.i2c_target import I2CTargetAdapter
+from joint.console.log import Logger
 from joint.sim.clock import VirtualClock
 from joint.sim.i2c_target import FakeI2CTarget
 

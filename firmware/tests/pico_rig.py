@@ -10,17 +10,18 @@ MicroPython only (CPython boxes every int): it returns None there.
 import gc
 import sys
 
-from joint import config, protocol as P
-from joint.core import JointController
-from joint.i2c_target import I2CTargetAdapter
-from joint.log import Logger
+from joint.config import schema as config
+from joint.spec import protocol as P
+from joint.core.controller import JointController
+from joint.links.i2c_target import I2CTargetAdapter
+from joint.console.log import Logger
 from joint.pico.as5600 import AS5600, RAW_ANGLE, STATUS, CONF
 from joint.pico.motor import PicoStepper
 from joint.pico.stepgen import StepGenerator, burst_pulses
 from joint.pico.tmc2209 import TMC2209
 from joint.sim.clock import VirtualClock
 from joint.sim.i2c_target import FakeI2CTarget
-from test_pico_backend import FakeTMCBus
+from pico_fakes import FakeTMCBus
 
 MICROPYTHON = sys.implementation.name == "micropython"
 _RING = 8

@@ -1,6 +1,7 @@
 """Boot on the board (app.py) with a stand-in `machine`: bad configurations never crash the firmware."""
 
-from joint import app, protocol as P
+from joint import app
+from joint.spec import protocol as P
 from joint.sim.clock import VirtualClock
 from joint.sim.i2c_target import FakeI2CTarget
 
@@ -63,12 +64,12 @@ def test_bus_pins_the_port_refuses_are_reported_not_fatal():
 
 
 def test_pico_joint_bus_pins_are_checked_in_the_config():
-    from joint import config
+    from joint.config import schema as config
     cfg = config.parse({"joint": "J1", "address": 17, "i2c": {"sda": 5, "scl": 4},
                         "motor": {"backend": "pico"}}, "j.json")
     assert "j.json: i2c.sda = 5 is not an SDA pin of I2C0 on the Pico" in cfg.errors
     assert "j.json: i2c.scl = 4 is not an SCL pin of I2C0 on the Pico" in cfg.errors
-    assert config.load("firmware/joint/configs/J1.json").valid
+    assert config.load("firmware/joint/config/J1.json").valid
 
 
 def test_no_address_means_not_joining_the_bus():

@@ -2,7 +2,7 @@
 
 import struct
 
-from joint import protocol as P
+from joint.spec import protocol as P
 from harness import Rig, Xorshift
 
 NON_FINITE = (float("nan"), float("inf"), float("-inf"))

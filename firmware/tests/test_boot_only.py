@@ -2,9 +2,10 @@
 
 import sys
 
-from joint import app, protocol as P, protocol_v2 as V
-from joint.regtable import NOT_A_COMMAND, RegisterTable
-from joint.debug import DebugConsole
+from joint import app
+from joint.spec import protocol as P, protocol_v2 as V
+from joint.spec.regtable import NOT_A_COMMAND, RegisterTable
+from joint.console.debug import DebugConsole
 from test_app import Machine, _boot
 
 ON_BOARD_PORT = sys.implementation.name == "micropython"
@@ -54,7 +55,7 @@ def test_the_board_forgets_the_boot_only_modules_and_runs_without_them():
     if ON_BOARD_PORT:
         assert kept == [], kept
     else:
-        assert "config" in kept and "protocol" in kept, kept
+        assert "config.schema" in kept and "spec.protocol" in kept, kept
 
 
 def test_an_idle_console_keeps_only_its_line_reader_and_the_first_line_loads_the_commands():

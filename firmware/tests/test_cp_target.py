@@ -2,8 +2,8 @@
 
 import struct
 
-from joint import protocol as P
-from joint.cp_target import CircuitPythonTargetAdapter
+from joint.spec import protocol as P
+from joint.links.cp_target import CircuitPythonTargetAdapter
 from harness import Rig
 
 

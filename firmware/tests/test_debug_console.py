@@ -1,8 +1,8 @@
 """The joint's serial debug console: commands, trace, bounded work per main-loop call."""
 
-from joint import log as L
-from joint.debug_commands import TRACE_COLUMNS
-from joint.debug import DebugConsole
+from joint.console import log as L
+from joint.console.debug_commands import TRACE_COLUMNS
+from joint.console.debug import DebugConsole
 from harness import Rig
 
 

@@ -1,15 +1,15 @@
-"""Fixed-point arithmetic of the 1 kHz path (joint.fixed) and the integer ramp and estimator.
+"""Fixed-point arithmetic of the 1 kHz path (joint.motion.fixed) and the integer ramp and estimator.
 
-The integer versions are judged against the exact float models the simulator uses (joint.ramp.Ramp,
-joint.velocity.VelocityEstimator) and against struct's float32 encoding, on both interpreters.
+The integer versions are judged against the exact float models the simulator uses (joint.sim.ramp.Ramp,
+joint.motion.velocity.VelocityEstimator) and against struct's float32 encoding, on both interpreters.
 """
 
 import struct
 
-from joint.fixed import LIMIT, f32_to_q, i32, muldiv, store_q, to_q
-from joint.ramp import HOLD, POSITIONING, VELOCITY_NEG, VELOCITY_POS, Ramp
-from joint.tickramp import TickRamp
-from joint.velocity import FixedVelocityEstimator, VelocityEstimator
+from joint.motion.fixed import LIMIT, f32_to_q, i32, muldiv, store_q, to_q
+from joint.sim.ramp import HOLD, POSITIONING, VELOCITY_NEG, VELOCITY_POS, Ramp
+from joint.motion.tickramp import TickRamp
+from joint.motion.velocity import FixedVelocityEstimator, VelocityEstimator
 from harness import Xorshift
 
 

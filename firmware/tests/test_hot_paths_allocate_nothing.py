@@ -7,8 +7,9 @@ configs (the tracking stall detector, the homing monitor, the deadman in every m
 stop) and the original stall detector, the schema default, with its console trace on too.
 """
 
-from joint import config, protocol as P
-from joint.debug import DebugConsole
+from joint.config import schema as config
+from joint.spec import protocol as P
+from joint.console.debug import DebugConsole
 from pico_rig import MICROPYTHON, PicoJoint
 
 N = 400
@@ -106,7 +107,7 @@ def test_deadman_watching_and_the_idle_console_allocate_nothing():
 
 def _shipped(joint="J1"):
     """A joint on its shipped configuration (tracking stall detector), enabled."""
-    cfg = config.load("firmware/joint/configs/%s.json" % joint)
+    cfg = config.load("firmware/joint/config/%s.json" % joint)
     assert cfg.valid and cfg.stall.detector == "tracking", cfg.errors
     return _moving(cfg)
 

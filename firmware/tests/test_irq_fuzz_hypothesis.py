@@ -2,7 +2,7 @@
 
 from hypothesis import given, settings, strategies as st
 
-from joint import protocol as P
+from joint.spec import protocol as P
 from harness import Rig
 
 frames = st.one_of(

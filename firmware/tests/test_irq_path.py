@@ -7,9 +7,9 @@ Under the MicroPython unix port the fake target runs every handler call inside
 import struct
 import sys
 
-from joint import protocol as P
+from joint.spec import protocol as P
 from joint.sim.i2c_target import FakeI2CTarget
-from joint.i2c_target import I2CTargetAdapter
+from joint.links.i2c_target import I2CTargetAdapter
 from harness import Rig
 
 MICROPYTHON = sys.implementation.name == "micropython"
@@ -172,7 +172,7 @@ def test_stop_is_never_refused_even_with_a_full_queue():
 
 
 def test_irq_counters_stay_small_ints_on_32_bit_ports():
-    import joint.core as core
+    import joint.core.controller as core
     # A hard IRQ computes counter + 1 before masking: it must not reach 2**30 (a long int there).
     assert core.COUNTER_MASK + 1 <= 2 ** 30 - 1
     assert core.COUNTER_MASK % 16 == 15, "slot = counter % 16 must survive the wrap"
@@ -278,7 +278,7 @@ def test_the_irq_code_reads_the_spec_and_the_frame_table_where_they_are():
     constants (the board forgets protocol.py and irq_init.py after boot): they must be theirs."""
     if MICROPYTHON:
         return  # const() names with a leading underscore are no module attributes there
-    from joint import irq, irq_init as T
+    from joint.core import irq, irq_init as T
     assert (irq._R_NONE, irq._R_UNKNOWN_REGISTER, irq._R_LENGTH, irq._R_VALUE, irq._R_BUSY,
             irq._R_QUEUE_FULL, irq._R_DISABLED, irq._R_NOT_ENABLED, irq._R_STALLED,
             irq._R_HOMING_SENSITIVITY) == (
@@ -385,7 +385,8 @@ def test_the_main_loop_reads_the_queue_and_the_spec_where_they_are():
     every iteration as its own constants: they must be theirs."""
     if MICROPYTHON:
         return  # const() names with a leading underscore are no module attributes there
-    from joint import fixed, irq, loop
+    from joint.motion import fixed
+    from joint.core import irq, loop
     assert (loop._ANGLE_Q, loop._RPM_Q) == (fixed.ANGLE_Q, fixed.RPM_Q)
     assert (loop._ANGLEMOVED, loop._GETENCODERRPM, loop._GETDRIVERRPM, loop._GETPIDERROR, loop._LASTERROR) == (
         P.ANGLEMOVED, P.GETENCODERRPM, P.GETDRIVERRPM, P.GETPIDERROR, P.LASTERROR)

@@ -2,10 +2,11 @@
 
 import json
 
-from joint import config, protocol as P
+from joint.config import schema as config
+from joint.spec import protocol as P
 from harness import Rig
 
-CONFIG_DIR = "firmware/joint/configs/"
+CONFIG_DIR = "firmware/joint/config/"
 
 
 def _sim_version(path):

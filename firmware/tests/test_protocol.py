@@ -2,7 +2,7 @@
 
 import struct
 
-from joint import protocol as P
+from joint.spec import protocol as P
 
 # The original map as the original host puts it on the wire (original-host-behaviour.md 1.6):
 # (address, name, write bytes, read payload bytes, blocking).

@@ -1,7 +1,7 @@
-"""The TMC5130 ramp generator model (joint.ramp) and the uStepper velocity estimator (joint.velocity)."""
+"""The TMC5130 ramp generator model (joint.sim.ramp) and the uStepper velocity estimator (joint.motion.velocity)."""
 
-from joint.ramp import Ramp, POSITIONING, VELOCITY_POS, VELOCITY_NEG, HOLD
-from joint.velocity import VelocityEstimator
+from joint.sim.ramp import Ramp, POSITIONING, VELOCITY_POS, VELOCITY_NEG, HOLD
+from joint.motion.velocity import VelocityEstimator
 
 V = 25588.6  # usteps/s: 100 fs/s through the library's VMAX scaling
 A = 512227.0  # usteps/s^2: 2000 fs/s^2 through the AMAX scaling

@@ -2,7 +2,7 @@
 
 import struct
 
-from joint import protocol as P
+from joint.spec import protocol as P
 from harness import Rig
 
 ENABLED = 0x04  # after SETUP: homed bit still clear only after homing
@@ -124,7 +124,7 @@ def test_homeoffset_is_stored_and_returned():
 
 
 def test_identity_reports_versions_joint_and_spec_hash():
-    from joint.version import FIRMWARE_VERSION
+    from joint.spec.version import FIRMWARE_VERSION
     rig = Rig()
     values, flags = rig.read("IDENTITY")
     assert values == (P.PROTOCOL_VERSION,) + FIRMWARE_VERSION + (1, P.SPEC_HASH)

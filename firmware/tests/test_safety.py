@@ -1,7 +1,7 @@
 """Deadman per mode whatever the flags say, refused frames, homing limits, the tracking detector."""
 
-from joint import protocol as P
-from joint.tracking import TrackingDetector
+from joint.spec import protocol as P
+from joint.detect.tracking import TrackingDetector
 from harness import Rig
 
 NOTENABLED, BUSY, NOTHOMED = P.FLAG_NOTENABLED, P.FLAG_BUSY, P.FLAG_NOTHOMED
@@ -207,13 +207,13 @@ class ArmJoint:
     """One joint on its shipped configs/Jn.json, on the arm's mechanics, polled like a host."""
 
     def __init__(self, joint, payload_kg=0.0, safe_action=None):
-        from joint import config
+        from joint.config import schema as config
         from joint.sim import mechanics
         from joint.sim.bus import SimJointBus
         from joint.sim.clock import VirtualClock
         from joint.sim.joint import SimJoint
         from joint.sim.stepper import SimStepper
-        cfg = config.load("firmware/joint/configs/%s.json" % joint)
+        cfg = config.load("firmware/joint/config/%s.json" % joint)
         assert cfg.valid, cfg.errors
         cfg.motor = {"backend": "sim"}
         if safe_action is not None:

@@ -1,7 +1,7 @@
 """Homing, orientation check, stall detection and deadman: the real firmware on the simulated stepper."""
 
-from joint import protocol as P
-from joint.stall import StallDetector
+from joint.spec import protocol as P
+from joint.detect.stall import StallDetector
 from harness import SimRig
 
 BUSY, STALL, NOTHOMED, NOTENABLED = P.FLAG_BUSY, P.FLAG_STALL, P.FLAG_NOTHOMED, P.FLAG_NOTENABLED

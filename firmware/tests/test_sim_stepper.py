@@ -1,9 +1,9 @@
 """The simulated uStepper S32 (joint.sim.stepper) against ustepper-model.md sections 3, 4, 8.7 and 8.8."""
 
-from joint.fixed import RPM_Q, to_q
+from joint.motion.fixed import RPM_Q, to_q
 from joint.sim.clock import VirtualClock
 from joint.sim.stepper import SimStepper
-from joint.stall import StallDetector
+from joint.detect.stall import StallDetector
 
 F_ISR = 1541.85
 USTEPS_PER_DEG = 51200 / 360.0

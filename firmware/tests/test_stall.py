@@ -1,8 +1,8 @@
 """The original stall detector (stall.h): spike rejection, first-order low-pass, speed-adaptive
 threshold, computed in small-int fixed point."""
 
-from joint import config
-from joint.stall import StallDetector
+from joint.config import schema as config
+from joint.detect.stall import StallDetector
 
 
 def _detector(sensitivity, **stall):

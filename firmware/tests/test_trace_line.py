@@ -1,10 +1,10 @@
 """The console's trace line (trace_line.py): the original's `%.2f`/`%.3f` columns, written from the
 stall detector's fixed-point ints into a reused buffer."""
 
-from joint import config
-from joint.debug_commands import TRACE_COLUMNS
-from joint.stall import StallDetector
-from joint.trace_line import TraceLine
+from joint.config import schema as config
+from joint.console.debug_commands import TRACE_COLUMNS
+from joint.detect.stall import StallDetector
+from joint.detect.trace_line import TraceLine
 
 _RPM = 65536  # rpm Q16, as the HAL gives speeds
 _DECIMALS = (2, 2, 2, 3, 3, 2, 0)

@@ -3,9 +3,9 @@ two maps, every rejection path, whole-block reads, and an allocation-free main l
 
 import struct
 
-from joint import protocol as P, protocol_v2 as V
+from joint.spec import protocol as P, protocol_v2 as V
 from joint.sim.i2c_target import FakeI2CTarget, heap_lock, heap_unlock
-from joint.v2 import _mailbox_crc, _state_crc, f32_to_fixed
+from joint.links.memmap_v2 import _mailbox_crc, _state_crc, f32_to_fixed
 
 from v2rig import V2Rig
 

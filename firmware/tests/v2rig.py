@@ -1,13 +1,14 @@
 """A joint serving both protocols (core + ProtocolSwitch) behind fake I2C targets, in virtual time,
 and a minimal v2 host for the firmware tests (CPython and the MicroPython unix port)."""
 
-from joint import config, protocol as P, protocol_v2 as V
-from joint.core import JointController
-from joint.i2c_target import I2CTargetAdapter
-from joint.log import Logger
+from joint.config import schema as config
+from joint.spec import protocol as P, protocol_v2 as V
+from joint.core.controller import JointController
+from joint.links.i2c_target import I2CTargetAdapter
+from joint.console.log import Logger
 from joint.sim.clock import VirtualClock
 from joint.sim.i2c_target import FakeI2CTarget
-from joint.v2 import ProtocolSwitch
+from joint.links.memmap_v2 import ProtocolSwitch
 
 from harness import RecordingMotor
 

@@ -26,7 +26,7 @@ from enum import Enum
 from .bus.base import Bus
 from .config import ArmConfig, JointConfig
 from .errors import BioscaraError, CommError, IncorrectStateError, InvalidArgumentError, NotHomedError
-from .firmware import protocol as P
+from .firmware.spec import protocol as P
 from .joint import BlockingCommand, Joint
 
 log = logging.getLogger("bioscara.arm")

@@ -1,9 +1,9 @@
 """Deploy the joint firmware onto a CircuitPython board the way its users do: copy files onto the
 CIRCUITPY drive their computer mounts (a directory), then verify every file by its SHA-256.
 
-The image is the firmware's `joint` package in `/lib/joint` (CircuitPython's library folder),
-the joint's configuration as `/joint_config.json`, and `firmware/joint/cpy/board_code.py` as
-`/code.py`, which CircuitPython runs at boot. CircuitPython's compiler rejects
+The image is the firmware files of the board manifest `boards/pico_circuitpython.py` in
+`/lib/joint` (CircuitPython's library folder), the joint's configuration as `/joint_config.json`,
+and the manifest's MAIN (`cpy/board_code.py`) as `/code.py`, which CircuitPython runs at boot. CircuitPython's compiler rejects
 `@micropython.native` and `@micropython.viper` ("SyntaxError: invalid micropython decorator":
 the Pico build has no native emitter), so each such line becomes a comment of the same line: the
 same code then runs as bytecode, as it does under CPython in the tests.
@@ -23,6 +23,7 @@ drive is touched. CircuitPython restarts code.py by itself when files on the dri
 from __future__ import annotations
 
 import hashlib
+import importlib
 import os
 import re
 import subprocess
@@ -40,6 +41,7 @@ CODE_PATH = "/code.py"
 CONFIG_PATH = flash.CONFIG_PATH
 BOOT_OUT = "boot_out.txt"  # CircuitPython writes it at every boot: "Adafruit CircuitPython 10.2.1 on ..."
 _EMITTER = re.compile(rb"^([ \t]*)@micropython\.(native|viper)[ \t]*$", re.MULTILINE)
+MANIFEST = "pico_circuitpython"  # bioscara.firmware.boards.pico_circuitpython
 CIRCUITPYTHON_MPY = 6  # CircuitPython 10: sys.implementation._mpy == 6 | 3 << 8, bytecode only
 SMALL_INT_BITS = 31  # the RP2040 build's
 
@@ -54,14 +56,15 @@ def build_image(joint: str, config: tuple[bytes, firmware_config.JointConfig] | 
     config_text, cfg = config if config is not None else flash.joint_config(joint)
     compiler, build = _compiler()
     files: dict[str, bytes] = {}
-    for name, source in flash.firmware_sources("circuitpython").items():
+    for name, source in flash.firmware_sources(MANIFEST).items():
         source = circuitpython_source(source)
         if compiler is None:
             files[f"/lib/{name}"] = source
         else:
             files[f"/lib/{name[:-3]}.mpy"] = compiler(source, f"{name[:-3]}.mpy")
     files[CONFIG_PATH] = config_text
-    files[CODE_PATH] = resources.files("bioscara.firmware.cpy").joinpath(flash.BOARD_CODE).read_bytes()
+    main = importlib.import_module(f"bioscara.firmware.boards.{MANIFEST}").MAIN
+    files[CODE_PATH] = resources.files("bioscara.firmware").joinpath(main).read_bytes()
     return flash.Image(joint, cfg.address, files, compiler is not None, build)
 
 

@@ -2,7 +2,7 @@
 
 `JointConsole` owns the port (a joint's USB serial, or a simulated joint's pseudo-terminal from
 `bioscara sim`). A reader thread splits what the joint prints into lines: a trace sample (the
-tab-separated numbers of `firmware.debug.TRACE_COLUMNS`) goes to `samples` and to the CSV capture
+tab-separated numbers of `firmware.console.debug_commands.TRACE_COLUMNS`) goes to `samples` and to the CSV capture
 if one runs; every other line goes to `on_line`. When the port vanishes (the board reset or was
 unplugged), the reader says so, waits for it to come back, reopens it and turns the trace back on
 if it was on. The terminal side (prompt, live plot) is in `bioscara.commands.console`.
@@ -23,7 +23,7 @@ from rich.text import Text
 
 from . import trace_plot
 from .errors import CommError
-from .firmware.debug_commands import TRACE_COLUMNS, TRACE_UNITS
+from .firmware.console.debug_commands import TRACE_COLUMNS, TRACE_UNITS
 from .serial_port import DEFAULT_BAUD, PORT_ERRORS, open_port
 
 CSV_HEADER = ("time_s",) + TRACE_COLUMNS

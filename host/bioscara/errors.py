@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from enum import IntEnum
 
-from .firmware import protocol
+from .firmware.spec import protocol
 
 ErrorCode = IntEnum("ErrorCode", {name: value for value, name, _ in protocol.ERROR_CODES})
 ErrorCode.__doc__ = "Error codes of the original Bioscara driver (uErr.h)."
@@ -55,11 +55,3 @@ class ConfigError(BioscaraError, ValueError):
 
     code = ErrorCode.INVALID_ARGUMENT
 
-
-_BY_CODE = {cls.code: cls for cls in (NotHomedError, NotEnabledError, StalledError, NotInitError,
-                                       CommError, InvalidArgumentError, IncorrectStateError)}
-
-
-def error_for(code: int, message: str, *, joint: str | None = None) -> BioscaraError:
-    """The exception class for an original error code (BioscaraError for ERROR and unknown codes)."""
-    return _BY_CODE.get(code, BioscaraError)(message, joint=joint)

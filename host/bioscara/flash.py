@@ -1,6 +1,7 @@
 """Deploy the joint firmware onto a MicroPython board: build the image, diff, copy, verify, reboot.
 
-The image is the installed `bioscara.firmware` package (the board's `joint` package) precompiled
+The image is the installed `bioscara.firmware` package (the board's `joint` package) as the board's
+manifest (`bioscara.firmware.boards`) declares it, precompiled
 with mpy-cross for the board's .mpy version and architecture, the selected joint's configuration
 as `/joint_config.json`, and the board entry point `/main.py`. Only changed files are copied; every
 file is verified by its SHA-256 on the board, and `import joint.app` is tried on the board before
@@ -13,6 +14,7 @@ Everything that talks to the board sits behind `bioscara.mpboard.Board`.
 from __future__ import annotations
 
 import hashlib
+import importlib
 import json
 import re
 import shutil
@@ -21,14 +23,13 @@ from dataclasses import asdict, dataclass
 from functools import cache, partial
 from importlib import resources
 from pathlib import Path
-from importlib.resources.abc import Traversable
 from typing import Any, Callable
 
 from .bus import Bus
 from .errors import BioscaraError, ConfigError
-from .firmware import config as firmware_config
-from .firmware.protocol import PROTOCOL_VERSION
-from .firmware.version import FIRMWARE_VERSION
+from .firmware.config import schema as firmware_config
+from .firmware.spec.protocol import PROTOCOL_VERSION
+from .firmware.spec.version import FIRMWARE_VERSION
 from .joint import Joint
 from .mpboard import Board, BoardInfo, FlashError, dotted
 
@@ -38,10 +39,7 @@ PACKAGE_DIR = "/joint"
 CONFIG_PATH = "/" + firmware_config.CONFIG_FILE
 MAIN_PATH = "/main.py"
 MANAGED = (MAIN_PATH, CONFIG_PATH, PACKAGE_DIR)
-BOARD_MAIN = "board_main.py"  # in the firmware package; goes to the board root as /main.py
-BOARD_CODE = "board_code.py"  # in the firmware's cpy package; goes to CIRCUITPY as /code.py
-NOT_ON_BOARD = frozenset({"sim", "configs", "tests", "__pycache__", BOARD_MAIN, BOARD_CODE})
-NOT_ON_MICROPYTHON = frozenset({"cpy", "cp_target.py"})  # CircuitPython's backend and link
+DEFAULT_BOARD = "pico"  # the manifest in bioscara.firmware.boards that `flash` deploys
 APP_MODULE = "joint.app"
 FIRMWARE = dotted(FIRMWARE_VERSION)  # the version this host deploys and expects back
 # What mpboard's PROBE reports on a stock Raspberry Pi Pico with MicroPython v1.28.0 (the emulated
@@ -66,21 +64,37 @@ class Image:
         return hashlib.sha256(self.files[path]).hexdigest()
 
 
-def firmware_sources(runtime: str = "micropython") -> dict[str, bytes]:
-    """The board's `joint` package from the installed firmware: "joint/app.py" -> source."""
-    found: dict[str, bytes] = {}
-    skip = NOT_ON_BOARD | (NOT_ON_MICROPYTHON if runtime == "micropython" else frozenset())
+def board_files(board: str = DEFAULT_BOARD) -> tuple[str, ...]:
+    """The firmware files `board`'s manifest (`bioscara.firmware.boards.<board>`) declares, as
+    paths in the `joint` package ("pico/motor.py"), sorted; "pkg/" entries expand to the package's
+    modules. ConfigError names the boards there are when there is no such manifest."""
+    try:
+        manifest = importlib.import_module(f"bioscara.firmware.boards.{board}")
+    except ImportError:
+        raise ConfigError(f"no board manifest {board!r}; boards: {', '.join(boards())}") from None
+    root = resources.files("bioscara.firmware")
+    files: set[str] = set()
+    for entry in manifest.FILES:
+        if entry.endswith("/"):
+            files.update(entry + child.name for child in root.joinpath(entry).iterdir()
+                         if child.name.endswith(".py"))
+        elif root.joinpath(entry).is_file():
+            files.add(entry)
+        else:
+            raise ConfigError(f"board manifest {board!r} names {entry}, which is not in the firmware")
+    return tuple(sorted(files))
 
-    def walk(node: Traversable, prefix: str) -> None:
-        for child in node.iterdir():
-            if child.is_dir():
-                if child.name not in skip:
-                    walk(child, f"{prefix}/{child.name}")
-            elif child.name.endswith(".py") and child.name not in skip:
-                found[f"{prefix}/{child.name}"] = child.read_bytes()
 
-    walk(resources.files("bioscara.firmware"), "joint")
-    return dict(sorted(found.items()))
+def boards() -> tuple[str, ...]:
+    """The boards that have a manifest."""
+    found = resources.files("bioscara.firmware.boards").iterdir()
+    return tuple(sorted(c.name[:-3] for c in found if c.name.endswith(".py") and c.name != "__init__.py"))
+
+
+def firmware_sources(board: str = DEFAULT_BOARD) -> dict[str, bytes]:
+    """The board's `joint` package as its manifest declares it: "joint/app.py" -> source."""
+    root = resources.files("bioscara.firmware")
+    return {f"joint/{name}": root.joinpath(name).read_bytes() for name in board_files(board)}
 
 
 def joint_config(joint: str) -> tuple[bytes, firmware_config.JointConfig]:
@@ -88,7 +102,7 @@ def joint_config(joint: str) -> tuple[bytes, firmware_config.JointConfig]:
     if joint not in JOINTS:
         raise ConfigError(f"no joint {joint!r}; use one of {', '.join(JOINTS)}")
     name = f"{joint}.json"
-    text = resources.files("bioscara.firmware.configs").joinpath(name).read_bytes()
+    text = resources.files("bioscara.firmware.config").joinpath(name).read_bytes()
     cfg = firmware_config.parse(json.loads(text), name)
     if not cfg.valid:
         raise ConfigError("; ".join(cfg.errors))
@@ -119,14 +133,15 @@ def user_joint_config(path: str) -> tuple[bytes, firmware_config.JointConfig]:
 
 
 def build_image(joint: str, board: BoardInfo, config: tuple[bytes, firmware_config.JointConfig] | None = None,
-                *, line_numbers: bool = False) -> Image:
-    """Everything `joint` needs on `board`, precompiled if mpy-cross can target the board;
-    `config`: a user's joint configuration (`user_joint_config`) instead of the shipped one;
-    `line_numbers`: keep the source line tables in the .mpy files (see `_compiler`)."""
+                *, line_numbers: bool = False, manifest: str = DEFAULT_BOARD) -> Image:
+    """Everything `joint` needs on `board`: the files of the board manifest `manifest`, precompiled
+    if mpy-cross can target the board; `config`: a user's joint configuration (`user_joint_config`)
+    instead of the shipped one; `line_numbers`: keep the source line tables in the .mpy files (see
+    `_compiler`)."""
     config_text, cfg = config if config is not None else joint_config(joint)
     compiler, build = _compiler(board, line_numbers)
     files: dict[str, bytes] = {}
-    for name, source in firmware_sources().items():
+    for name, source in firmware_sources(manifest).items():
         if compiler is None:
             files[f"/{name}"] = source
         else:
@@ -134,7 +149,8 @@ def build_image(joint: str, board: BoardInfo, config: tuple[bytes, firmware_conf
             # two, in the board's never-freed string pool (about 1 KB over the package).
             files[f"/{name[:-3]}.mpy"] = compiler(source, f"{name[:-3]}.mpy")
     files[CONFIG_PATH] = config_text
-    files[MAIN_PATH] = resources.files("bioscara.firmware").joinpath(BOARD_MAIN).read_bytes()
+    main = importlib.import_module(f"bioscara.firmware.boards.{manifest}").MAIN
+    files[MAIN_PATH] = resources.files("bioscara.firmware").joinpath(main).read_bytes()
     return Image(joint, cfg.address, files, compiler is not None, build)
 
 
@@ -232,11 +248,11 @@ class Plan:
 
 
 def plan(board: Board, joint: str, config: tuple[bytes, firmware_config.JointConfig] | None = None,
-         *, line_numbers: bool = False) -> Plan:
+         *, line_numbers: bool = False, manifest: str = DEFAULT_BOARD) -> Plan:
     """Probe the board, refuse it if unfit, build the image and diff it against the board's files."""
     info = board.info()
     check_board(info, board.port)
-    image = build_image(joint, info, config, line_numbers=line_numbers)
+    image = build_image(joint, info, config, line_numbers=line_numbers, manifest=manifest)
     on_board = board.hashes(MANAGED)
     added = tuple(p for p in image.files if p not in on_board)
     updated = tuple(p for p in image.files if p in on_board and on_board[p] != image.sha256(p))
@@ -250,9 +266,10 @@ def plan(board: Board, joint: str, config: tuple[bytes, firmware_config.JointCon
 
 
 def plan_without_board(joint: str, config: tuple[bytes, firmware_config.JointConfig] | None = None,
-                       board: BoardInfo = STOCK_PICO, *, line_numbers: bool = False) -> Plan:
+                       board: BoardInfo = STOCK_PICO, *, line_numbers: bool = False,
+                       manifest: str = DEFAULT_BOARD) -> Plan:
     """What flashing `joint` would deploy on a fresh `board` (a stock Pico): every file added."""
-    image = build_image(joint, board, config, line_numbers=line_numbers)
+    image = build_image(joint, board, config, line_numbers=line_numbers, manifest=manifest)
     return Plan("", board, image, tuple(image.files), (), (), (), assumed=True)
 
 

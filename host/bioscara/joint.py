@@ -26,8 +26,8 @@ from .errors import (
     BioscaraError, CommError, IncorrectStateError, InvalidArgumentError, NotEnabledError, NotHomedError,
     NotInitError, StalledError,
 )
-from .firmware import protocol as P
-from .firmware import protocol_v2 as V
+from .firmware.spec import protocol as P
+from .firmware.spec import protocol_v2 as V
 from .transmission import Transmission
 from .v2link import V2Link, V2Rejected
 

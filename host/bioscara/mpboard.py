@@ -118,7 +118,7 @@ def _bits():
     micropython.heap_unlock()
     return 0
 try:
-    from joint.version import FIRMWARE_VERSION as _v
+    from joint.spec.version import FIRMWARE_VERSION as _v
     _v = tuple(_v)
 except Exception:
     _v = None

@@ -16,7 +16,7 @@ from typing import IO, Any
 from . import __version__
 from .communicator import Snapshot
 from .errors import InvalidArgumentError
-from .firmware import protocol as P
+from .firmware.spec import protocol as P
 
 SUFFIXES = (".csv", ".jsonl", ".ndjson")
 

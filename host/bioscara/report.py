@@ -13,7 +13,7 @@ import math
 from typing import Any
 
 from .config import JointConfig
-from .firmware import protocol as P
+from .firmware.spec import protocol as P
 
 
 def unit(jc: JointConfig) -> str:

@@ -28,7 +28,7 @@ from .bus.base import Bus
 from .communicator import Communicator
 from .config import ArmConfig
 from .errors import (BioscaraError, CommError, InvalidArgumentError, NotEnabledError, StalledError)
-from .firmware import protocol as P
+from .firmware.spec import protocol as P
 from .joint import Joint
 
 Output = Callable[[str], None]

@@ -3,7 +3,7 @@
 One pseudo-terminal speaks the HIL bridge framing: the bridge firmware itself (`hil_bridge.bridge`)
 serves it, with a `machine.I2C` stand-in over the simulated joint bus, so `serial:<path>` reaches
 the simulated joints through exactly the code path a USB bridge board runs. Every joint also gets
-a pseudo-terminal with its serial debug console (`firmware.debug`) and its log lines.
+a pseudo-terminal with its serial debug console (`firmware.console.debug`) and its log lines.
 
 Scheduling: one thread owns the simulation. Each turn it runs every joint's main loop up to the
 wall clock (at the chip's loop period, so the joints follow real time), serves what arrived (bridge
@@ -31,8 +31,8 @@ from collections.abc import Sequence
 from typing import Any
 
 from .bus.sim import SimJointSpec, build_joint
-from .firmware.clock import MonotonicClock
-from .firmware.debug import DebugConsole
+from .firmware.core.clock import MonotonicClock
+from .firmware.console.debug import DebugConsole
 from .firmware.sim.bus import SimJointBus
 from .firmware.sim.clock import VirtualClock
 from .hil_bridge.bridge import Bridge

@@ -1,4 +1,4 @@
-"""The host side of protocol v2 (firmware/joint/protocol_v2.py): one combined transaction per
+"""The host side of protocol v2 (firmware/joint/spec/protocol_v2.py): one combined transaction per
 exchange, writing a mailbox frame and reading the state block, with the checks that keep corrupted
 or replayed data out.
 
@@ -15,8 +15,8 @@ from dataclasses import dataclass
 
 from .bus.base import Bus
 from .errors import BioscaraError, CommError
-from .firmware import protocol as P
-from .firmware import protocol_v2 as V
+from .firmware.spec import protocol as P
+from .firmware.spec import protocol_v2 as V
 
 SYNC_ATTEMPTS = 50  # exchanges before a joint that was asked to switch counts as not speaking v2
 VERDICT_ATTEMPTS = 20  # exchanges waiting for a command's verdict

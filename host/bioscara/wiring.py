@@ -8,7 +8,7 @@ firmware will use.
 
 from __future__ import annotations
 
-from .firmware import config as firmware_config
+from .firmware.config import schema as firmware_config
 from .firmware.pico.motor_config import DEFAULTS
 
 Row = tuple[str, str, str]  # Pico pin, signal, connects to

@@ -105,27 +105,31 @@ def test_a_host_asking_for_v2_is_refused_and_stays_on_legacy(circuitpython_joint
     joint.close()
 
 
-def _keep_alive(bus: JointBusClient, ms: int) -> list:
-    """The host polls the flags every KEEP_ALIVE_US for `ms` milliseconds of emulated time."""
-    return bus.schedule([(ADDRESS, bytes([P.PING]), 2)], repeat=ms * 1000 // KEEP_ALIVE_US, period_us=KEEP_ALIVE_US)
+def _frame(reg: int, fmt: str = "", *values: float) -> tuple[int, bytes, int]:
+    """A command as the original host sends it: [reg, payload], repeated START, the flags."""
+    return ADDRESS, bytes([reg]) + (struct.pack("<" + fmt, *values) if fmt else b""), 1
 
 
-def _command(bus: JointBusClient, reg: int, fmt: str = "", *values: float) -> int:
-    """A command frame, then its flags byte; asserts that the joint accepted it."""
-    t = bus.transfer(ADDRESS, bytes([reg]) + (struct.pack("<" + fmt, *values) if fmt else b""), 1, gap_us=1000)
-    assert t.ack and not t.data[0] & P.FLAG_ERROR, f"register 0x{reg:02x}: flags {t.data.hex()}"
-    return t.data[0]
+def _session(bus: JointBusClient, commands: list, ms: int) -> list:
+    """`commands`, then PINGs for `ms` milliseconds, one transaction every KEEP_ALIVE_US of
+    emulated time (the deadman is 50 ms: the joint never waits on this process); asserts every
+    command was accepted; returns the PINGs."""
+    pings = [(ADDRESS, bytes([P.PING]), 2)] * (ms * 1000 // KEEP_ALIVE_US)
+    done = bus.schedule(commands + pings, gap_us=KEEP_ALIVE_US)
+    for t in done[:len(commands)]:
+        assert t.ack and not t.data[0] & P.FLAG_ERROR, f"{t.write.hex()}: flags {t.data.hex()}"
+    return done[len(commands):]
+
+
+FAST = [_frame(P.SETUP, "BBBB", 50, 20, 0, 0), _frame(P.SETMAXVELOCITY, "f", 360.0),
+        _frame(P.SETMAXACCELERATION, "f", 7200.0)]
 
 
 def test_moveangle_turns_the_rotor(circuitpython_joint) -> None:
     pico, bus, _ = circuitpython_joint
     devices = JointDevices(pico)
-    _command(bus, P.SETUP, "BBBB", 50, 20, 0, 0)
-    _command(bus, P.SETMAXVELOCITY, "f", 360.0)
-    _command(bus, P.SETMAXACCELERATION, "f", 7200.0)
     before = devices.state()
-    _command(bus, P.MOVEANGLE, "f", 90.0)
-    _keep_alive(bus, 1500)
+    _session(bus, [*FAST, _frame(P.MOVEANGLE, "f", 90.0)], 1500)
     after = devices.state()
     moved = after["rotor"]["position"] - before["rotor"]["position"]
     # The closed loop re-synchronises the driver to the encoder at 15 usteps: the move ends within
@@ -138,11 +142,10 @@ def test_moveangle_turns_the_rotor(circuitpython_joint) -> None:
 def test_the_deadman_stops_the_rotor_when_the_host_goes_quiet(circuitpython_joint) -> None:
     pico, bus, _ = circuitpython_joint
     devices = JointDevices(pico)
-    _command(bus, P.SETUP, "BBBB", 50, 20, 0, 0)
     devices.capture_steps(True)
-    _command(bus, P.SETRPM, "f", 30.0)
-    polls = _keep_alive(bus, 300)
-    quiet_ns = polls[-1].start_us * 1000 + polls[-1].total_us * 1000
+    polls = _session(bus, [*FAST, _frame(P.SETRPM, "f", 30.0)], 300)
+    assert all(not t.data[1] & P.FLAG_NOTENABLED for t in polls), "enabled while the host polls"
+    quiet_ns = (polls[-1].start_us + polls[-1].total_us) * 1000
     flags = bus.transfer(ADDRESS, bytes([P.PING]), 2, gap_us=200_000).data[1]  # 200 ms of silence first
     times = devices.capture_steps(False)
     assert flags & P.FLAG_NOTENABLED, "the deadman disabled the joint"
@@ -150,21 +153,20 @@ def test_the_deadman_stops_the_rotor_when_the_host_goes_quiet(circuitpython_join
     print(f"CircuitPython deadman: last step {last_step_ms:.1f} ms after the host went quiet (deadman 50 ms)")
     assert 50 < last_step_ms < 50 + 60
     still = devices.state()["rotor"]["position"]
-    _keep_alive(bus, 50)
+    _session(bus, [], 50)
     assert devices.state()["rotor"]["position"] == still
 
 
 def test_home_ends_at_the_end_stop(circuitpython_joint) -> None:
     pico, bus, _ = circuitpython_joint
     devices = JointDevices(pico)
-    _command(bus, P.SETUP, "BBBB", 20, 20, 0, 0)
-    _command(bus, P.SETMAXACCELERATION, "f", 3600.0)
     stop = devices.stops(low=-3.0)["low"]
     # J1's homing from the default arm configuration: 10 motor rpm, |PID error| > 30, 15 % current.
-    flags = _command(bus, P.HOME, "BBBB", 0, 10, 30, 15)
+    setup = [_frame(P.SETUP, "BBBB", 20, 20, 0, 0), _frame(P.SETMAXACCELERATION, "f", 3600.0)]
+    flags = _session(bus, [*setup, _frame(P.HOME, "BBBB", 0, 10, 30, 15)], 20)[-1].data[1]
     assert flags & P.FLAG_BUSY
     for _ in range(40):
-        flags = _keep_alive(bus, 250)[-1].data[1]
+        flags = _session(bus, [], 250)[-1].data[1]
         if not flags & P.FLAG_BUSY:
             break
     state = devices.state()

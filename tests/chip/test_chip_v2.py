@@ -21,8 +21,8 @@ from pathlib import Path
 import pytest
 
 import v2_vectors
-from bioscara.firmware import protocol as P
-from bioscara.firmware import protocol_v2 as V
+from bioscara.firmware.spec import protocol as P
+from bioscara.firmware.spec import protocol_v2 as V
 from chip.board import EmulatedPico
 from chip.i2c import JointBusClient, Transaction, joint_bus_plugin
 from chip.joint_devices import JOINT_DEVICES_PLUGIN

@@ -17,7 +17,7 @@ from chip.board import EmulatedPico
 from chip.i2c import ChipBus, JointBusClient, joint_bus_plugin
 from chip.testing import joint_image, requires_chip  # noqa: F401 (joint_image is a fixture)
 from harness import Rig
-from joint import protocol as P
+from joint.spec import protocol as P
 
 pytestmark = requires_chip
 

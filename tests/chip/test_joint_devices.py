@@ -21,7 +21,7 @@ from pathlib import Path
 import pytest
 import serial
 
-from bioscara.firmware import protocol as P
+from bioscara.firmware.spec import protocol as P
 from bioscara.firmware.pico import tmc2209 as tmc
 from bioscara.firmware.pico import tmc2209_setup as tmc_setup
 from chip.board import EmulatedPico
@@ -36,7 +36,9 @@ USTEPS_PER_DEG = USTEPS_PER_REV / 360
 # On the board, after main.py was interrupted: a fresh controller and its main loop in emulated time.
 BOARD_HELPERS = """
 import json, machine, rp2, struct, time
-from joint import app, config, protocol as P
+from joint import app
+from joint.config import schema as config
+from joint.spec import protocol as P
 
 # J1's configuration with faster boot limits, so the orientation check of every fresh controller
 # takes ~0.1 s instead of ~0.6 s of emulated time (it is tested as deployed by the first test).

@@ -15,9 +15,9 @@ same core runs as bytecode on the CPython clock of clock.py (docs/circuitpython.
 """
 
 from .. import app as mp_app
-from ..cp_target import CircuitPythonTargetAdapter
-from ..debug import DebugConsole
-from ..settings import CONFIG_FILE
+from ..links.cp_target import CircuitPythonTargetAdapter
+from ..console.debug import DebugConsole
+from ..config.settings import CONFIG_FILE
 
 SLOW_EVERY_MASK = 3  # the console: every 4th iteration
 QUIET_MS = 3  # a collection waits for this many millisecond ticks without a request ...

@@ -25,13 +25,8 @@ Units: 4096 counts per revolution. With the library's 51200 usteps per revolutio
 
 from array import array
 
-from ..emitters import micropython, ptr8, ptr32, state_word
-
-try:
-    from micropython import const
-except ImportError:
-    def const(x):
-        return x
+from ..micro import const, micropython, ptr32, ptr8
+from ..motion.fixed import state_word
 
 ADDRESS = const(0x36)
 CONF = const(0x07)

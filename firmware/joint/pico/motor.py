@@ -1,6 +1,6 @@
 """PicoStepper: the MotorHAL on a Raspberry Pi Pico, a TMC2209 and an AS5600.
 
-The TMC5130 of the uStepper generated its own ramp; here joint.tickramp.TickRamp plays that part in the
+The TMC5130 of the uStepper generated its own ramp; here joint.motion.tickramp.TickRamp plays that part in the
 main loop and the PIO turns it into STEP/DIR pulses (stepgen.py). update() does what the
 library's 1.54 kHz timer interrupt did (ustepper-model.md section 3): sample the encoder, run the
 velocity estimator and, with the closed loop on, re-synchronise the driver position to the encoder
@@ -24,22 +24,16 @@ Default wiring (motor_config.DEFAULT_PINS; the joint bus target is I2C0 on GP4 S
     TMC2209 MS1/MS2 set the UART node address (tmc_address); SPREAD tied low.
 """
 
-from ..emitters import micropython, ptr32
+from ..micro import const, micropython, ptr32
 
-try:
-    from micropython import const
-except ImportError:
-    def const(x):
-        return x
-
-from ..fixed import muldiv
-from ..hal import MotorHAL
-from ..tickramp import POSITIONING, VELOCITY_NEG, _run as _ramp_run
-from ..velocity import _update as _velocity_update
+from ..motion.fixed import muldiv
+from ..motion.hal import MotorHAL
+from ..motion.tickramp import POSITIONING, VELOCITY_NEG, run_ramp
+from ..motion.velocity import update_velocity
 from . import tmc2209 as tmc
 from .as5600 import decode_status
 from .as5600 import next_sample as _enc_next
-from .stepgen import _issue as _steps_issue, _poll as _steps_poll
+from .stepgen import issue_steps, poll_steps
 
 
 _FS_Q4_CAP = 20000 * 16  # full steps/s(^2) in Q4 beyond every limit below: keeps products small
@@ -48,7 +42,7 @@ _MAX_DT_TICKS = const(4)  # a late update advances the ramp by at most this many
 
 # Words of the state arrays _resync and the 1 kHz methods work on, as constants here (viper
 # needs them; elsewhere each saves a global lookup): the encoder's (as5600.S_COUNT, S_AT, S_NEXT)
-# and the ramp's position and speed (tickramp.S_X, S_V); test_pico_backend checks.
+# and the ramp's position and speed (tickramp.S_X, S_V); test_pico_motor checks.
 _ES_COUNT = const(1)
 _ES_AT = const(4)
 _ES_NEXT = const(6)
@@ -62,7 +56,7 @@ def _resync(es: ptr32, ss: ptr32, rs: ptr32, threshold: int) -> int:
     """The closed loop's tick: the PID error (usteps, the driver position when the encoder was
     read minus the encoder's), and when |error| >= threshold the driver frame shifted onto the
     encoder (_relabel(-error): step generator, ramp, and the queued read's tag). Words are read
-    sign-extended as in tickramp._run."""
+    sign-extended as in tickramp.run_ramp."""
     m = 1
     m <<= 31
     k = m + m - 1
@@ -98,14 +92,6 @@ def _velocity_mode(rs: ptr32, rpm: int, den: int, limit: int):
             v = limit
     rs[_RS_VMAX] = v
     rs[_RS_MODE] = _VELOCITY_POS if rpm > 0 else _VELOCITY_NEG
-
-
-def i2c_registers(index):
-    """Address of the DW_apb_i2c block behind machine.I2C(index) (RP2040 or RP2350 datasheet)."""
-    import sys
-
-    base = 0x40090000 if "RP2350" in sys.implementation._machine else 0x40044000
-    return base + index * (0x8000 if base == 0x40090000 else 0x4000)
 
 
 class PicoStepper(MotorHAL):
@@ -160,20 +146,20 @@ class PicoStepper(MotorHAL):
             self._last_us = now
         else:
             self._last_us += ticks * tick_us
-        _steps_poll(ss, sm, pio)
+        poll_steps(ss, sm, pio)
         # The encoder read queued at the last update, tagged with the driver and field positions
         # of that instant (as5600.py); a blocking read when none is queued.
         got = _enc_next(es, enc_regs, enc_buf, ss[0], ss[3])
         if got < 0:
             got = self._enc.sample(ss[0], ss[3])
         if got:
-            _velocity_update(vs, es[_ES_COUNT])
+            update_velocity(vs, es[_ES_COUNT])
             if self._closed_loop:
                 self._error = _resync(es, ss, rs, self._threshold)
-        _ramp_run(rs, ticks)
+        run_ramp(rs, ticks)
         if self._stopping and rs[_RS_V] == 0:
             self._finish_stop()
-        _steps_issue(ss, sm, pio, rs[_RS_X], ticks * tick_us)
+        issue_steps(ss, sm, pio, rs[_RS_X], ticks * tick_us)
 
     def _relabel(self, delta):
         """Shift the driver frame by `delta` usteps without moving the motor (an XACTUAL write):

@@ -5,9 +5,9 @@ A module of its own because nothing here runs after boot: `app.build` drops it f
 `sys.modules` once the joint is built, and its code and tables leave the heap.
 """
 
-from ..clock import MonotonicClock
-from ..tickramp import POSITIONING, TickRamp
-from ..velocity import FixedVelocityEstimator
+from ..core.clock import MonotonicClock
+from ..motion.tickramp import POSITIONING, TickRamp
+from ..motion.velocity import FixedVelocityEstimator
 from . import tmc2209 as tmc
 from .as5600 import AS5600, decode_status
 from .tmc2209_setup import chopconf, current_scale, tpowerdown, tpwmthrs
@@ -145,8 +145,7 @@ _STEALTH_MAX = 2000.0  # usteps/s: the library's TPWMTHRS=5000 at 10 MHz
 
 def build_stepper(cls, motor_cfg, clock):
     """PicoStepper.from_config: the real objects from a motor config dict (DEFAULTS fill the gaps)."""
-    from .motor import i2c_registers
-
+    from . import i2c_registers
 
     problems = validate_motor_config(motor_cfg)
     if problems:

@@ -1,6 +1,6 @@
 """Step/dir pulses from an RP2040/RP2350 PIO state machine, fed one burst per main-loop tick.
 
-Scheme: the ramp generator (joint.ramp.Ramp) runs in the main loop. Each update() turns the
+Scheme: the ramp generator (joint.motion.tickramp.TickRamp) runs in the main loop. Each update() turns the
 ramp's advance since the last tick into one burst word "N pulses, direction d, period P" and puts
 it into the state machine's TX FIFO. The PIO program sets DIR, emits the N pulses at P cycles
 each and pushes the word back into the RX FIFO as an acknowledgement. The driver position is the
@@ -31,13 +31,8 @@ Speed changes take effect at the next tick: one loop period of latency.
 
 from array import array
 
-from ..emitters import micropython, ptr32, state_word
-
-try:
-    from micropython import const
-except ImportError:
-    def const(x):
-        return x
+from ..micro import const, micropython, ptr32
+from ..motion.fixed import state_word
 
 SM_FREQ = const(12500000)
 HIGH_CYCLES = const(3)  # STEP high time: the pulse instruction plus its 2-cycle delay
@@ -164,13 +159,13 @@ class StepGenerator:
 
     def poll(self):
         """Account for bursts the PIO has finished."""
-        _poll(self.s, self._sm, self.pio)
+        poll_steps(self.s, self._sm, self.pio)
 
     def issue(self, target, dt_us):
         """Queue one burst toward `target` (int usteps, the ramp position) spread over BURST_FILL
         of `dt_us` microseconds; returns the pulses queued (0 when there is nothing whole to send
         or the FIFO is busy). Integers only: it runs at 1 kHz on the board."""
-        return _issue(self.s, self._sm, self.pio, target, dt_us)
+        return issue_steps(self.s, self._sm, self.pio, target, dt_us)
 
     def shift(self, delta):
         """Relabel both positions by `delta` usteps (closed-loop re-sync, set home)."""
@@ -182,7 +177,7 @@ class StepGenerator:
         return self.s[2] == 0
 
 
-# The viper functions read the state's words sign-extended, as joint.ramp._run explains.
+# The viper functions read the state's words sign-extended, as joint.motion.tickramp.run_ramp explains.
 # PIO registers as 32-bit word indices (RP2040 datasheet 3.7): FSTAT (RXEMPTY bits 8..11), TXF0..3,
 # RXF0..3.
 _FSTAT = const(1)
@@ -192,7 +187,7 @@ _RXEMPTY = const(8)
 
 
 @micropython.viper
-def _poll(s: ptr32, sm, pio: int):
+def poll_steps(s: ptr32, sm, pio: int):
     m = 1
     m <<= 31
     k = m + m - 1
@@ -222,7 +217,7 @@ def _poll(s: ptr32, sm, pio: int):
 
 
 @micropython.viper
-def _issue(s: ptr32, sm, pio: int, target: int, dt_us: int) -> int:
+def issue_steps(s: ptr32, sm, pio: int, target: int, dt_us: int) -> int:
     m = 1
     m <<= 31
     k = m + m - 1

@@ -13,11 +13,7 @@ counts each valid write in IFCNT, which is how writes are verified. The values w
 boot (CHOPCONF, TPOWERDOWN, TPWMTHRS, the current scale) come from tmc2209_setup.py.
 """
 
-try:
-    from micropython import const
-except ImportError:
-    def const(x):
-        return x
+from ..micro import const
 
 SYNC = const(0x05)
 MASTER = const(0xFF)

@@ -9,11 +9,7 @@ V_fs = 0.325 V (vsense=0) or 0.180 V (vsense=1), CS = IRUN or IHOLD (0..31). The
 sense-resistor table (e.g. 0.10 Ohm, CS=31, vsense=0 -> 1.92 A) matches this formula.
 """
 
-try:
-    from micropython import const
-except ImportError:
-    def const(x):
-        return x
+from ..micro import const
 
 # CHOPCONF fields
 _TOFF_MASK = const(0xF)

@@ -7,7 +7,7 @@ period the chip achieves, with its garbage-collection pauses (sim.chip: the cost
 deterministically, faster than real time and no faster than the chip.
 """
 
-from ..protocol import wire_bits
+from ..spec.protocol import wire_bits
 from .chip import ChipCosts
 
 NACK_ERRNO = 121  # EREMOTEIO: what Linux I2C adapters report for an unacknowledged address

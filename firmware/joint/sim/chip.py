@@ -16,7 +16,7 @@ MicroPython-compatible like the rest of joint.sim.
 
 import json
 
-from .. import protocol
+from ..spec import protocol
 
 TABLE = "chip_costs.json"
 

@@ -6,8 +6,8 @@ board's integers. This wrapper converts at the boundary, both ways, and passes e
 (simulator hooks such as `set_end_stops`, `block`) straight through.
 """
 
-from ..fixed import ANGLE_Q, RPM_Q, STEPS_Q, to_q
-from ..hal import MotorHAL
+from ..motion.fixed import ANGLE_Q, RPM_Q, STEPS_Q, to_q
+from ..motion.hal import MotorHAL
 
 _ANGLE = float(1 << ANGLE_Q)
 _RPM = float(1 << RPM_Q)

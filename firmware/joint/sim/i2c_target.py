@@ -40,7 +40,7 @@ except ImportError:
     def heap_unlock():
         pass
 
-from ..i2c_target import (
+from ..links.i2c_target import (
     IRQ_ADDR_MATCH_READ, IRQ_ADDR_MATCH_WRITE, IRQ_END_READ, IRQ_END_WRITE, IRQ_READ_REQ,
     IRQ_WRITE_REQ,
 )

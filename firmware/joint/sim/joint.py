@@ -1,22 +1,14 @@
 """A simulated joint: the real firmware core and I2C paths (legacy IRQ and v2 memory map)
 driving a simulated stepper."""
 
-from .. import config as joint_config
-from .. import protocol_v2 as V
-from ..core import JointController
-from ..i2c_target import I2CTargetAdapter
-from ..log import INFO, Logger
-from ..v2 import ProtocolSwitch
+from ..config import schema as joint_config
+from ..spec import protocol_v2 as V
+from ..core.controller import NO_CRITICAL, JointController
+from ..links.i2c_target import I2CTargetAdapter
+from ..console.log import INFO, Logger
+from ..links.memmap_v2 import ProtocolSwitch
 from .fixed_hal import FixedPointHAL
 from .i2c_target import FakeI2CTarget
-
-
-def _no_irq_off():
-    return 0
-
-
-def _no_irq_on(state):
-    pass
 
 
 class SimJoint:
@@ -76,7 +68,7 @@ class SimJoint:
         if self.switch is None:
             if self.core.ready:
                 self.switch = ProtocolSwitch(self.core, self.cfg.address, self._make_target,
-                                             self._legacy_adapter, (_no_irq_off, _no_irq_on),
+                                             self._legacy_adapter, NO_CRITICAL,
                                              _activity)
         else:
             self.switch.service()

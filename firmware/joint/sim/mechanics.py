@@ -132,11 +132,6 @@ def contact_force_n(joint, torque):
     return abs(torque) * n if joint == "J2" else abs(torque) * n / CONTACT_RADIUS[joint]
 
 
-def joint_to_motor_deg(joint, value):
-    """A joint displacement (rad, or m for J2) in motor degrees (magnitude of the reduction)."""
-    return value * ARM[joint]["reduction"] * DEG_PER_RAD
-
-
 def homing_error_bound_deg(joint, homing_current, noise="nominal", payload_kg=0.0):
     """Motor degrees by which the encoder zero set at the end of a homing can miss the link's
     stop: the transmission and the stop deflect under the homing push (the motor's torque at

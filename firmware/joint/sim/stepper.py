@@ -51,9 +51,9 @@ true ramp speed, not the library's 0.596x figure.
 
 import math
 
-from ..hal import MotorHAL
-from ..ramp import Ramp, POSITIONING, VELOCITY_POS, VELOCITY_NEG
-from ..velocity import VelocityEstimator
+from ..motion.hal import MotorHAL
+from .ramp import Ramp, POSITIONING, VELOCITY_POS, VELOCITY_NEG
+from ..motion.velocity import VelocityEstimator
 
 _F_ISR = 1541.85
 _T_ISR = 1.0 / _F_ISR

@@ -8,7 +8,7 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 
 from ..errors import CommError
-from ..firmware.protocol import wire_bits
+from ..firmware.spec.protocol import wire_bits
 
 RETRY_DELAYS_S = (0.0001, 0.001, 0.005)  # between attempts; the original waited only 50 us
 

@@ -13,7 +13,7 @@ import time
 from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
-from ..firmware import config as firmware_config
+from ..firmware.config import schema as firmware_config
 from ..firmware.sim.bus import SimJointBus
 from ..firmware.sim.clock import VirtualClock
 from ..firmware.sim import mechanics

@@ -19,7 +19,7 @@ from typing import Any
 
 from ..console import PLOT_COLUMNS, JointConsole, plot
 from ..errors import BioscaraError, InvalidArgumentError
-from ..firmware.debug_commands import TRACE_COLUMNS
+from ..firmware.console.debug_commands import TRACE_COLUMNS
 from ..paths import default_state_dir, private_file
 from ..serial_port import DEFAULT_BAUD
 from ..session import Session

@@ -38,6 +38,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "resistor...): validated as the firmware will, before the board is touched")
     parser.add_argument("--show-config", action="store_true",
                         help="only show the board's current /joint_config.json (and whether it is valid)")
+    parser.add_argument("--board", choices=[b for b in flash.boards() if not b.endswith("_circuitpython")],
+                        default=flash.DEFAULT_BOARD,
+                        help="which board's manifest to deploy (firmware/joint/boards/BOARD.py; default: %(default)s)")
     parser.add_argument("--dry-run", action="store_true",
                         help="show what would change on the board, changing nothing; without PORT: the files "
                         "(and sizes) that would go onto a stock Raspberry Pi Pico, the joint config validated")
@@ -75,11 +78,11 @@ def run(args: argparse.Namespace, session: Session) -> int:
     if args.joint and config is not None and args.joint != joint:
         raise InvalidArgumentError(f"{args.joint_config} configures {joint.lower()}, not {args.joint.lower()}")
     if args.port is None:
-        plan = flash.plan_without_board(joint, config, line_numbers=args.debug)
+        plan = flash.plan_without_board(joint, config, line_numbers=args.debug, manifest=args.board)
     else:
         board = mpboard.open_board(args.port)
         try:
-            plan = flash.plan(board, joint, config, line_numbers=args.debug)
+            plan = flash.plan(board, joint, config, line_numbers=args.debug, manifest=args.board)
             if not args.dry_run:
                 _apply(board, plan, session)
         finally:
@@ -97,7 +100,7 @@ def run(args: argparse.Namespace, session: Session) -> int:
 
 def _show_config(args: argparse.Namespace, session: Session) -> int:
     """The board's /joint_config.json, checked as its firmware checks it at boot."""
-    from ..firmware import config as firmware_config
+    from ..firmware.config import schema as firmware_config
 
     board = mpboard.open_board(args.port)
     try:

@@ -10,7 +10,7 @@ from rich.table import Table
 
 from .. import report
 from ..errors import BioscaraError, IncorrectStateError, NotHomedError
-from ..firmware import protocol_v2 as V
+from ..firmware.spec import protocol_v2 as V
 from ..session import Session
 from .options import one_joint
 

@@ -16,8 +16,8 @@ from rich.table import Table
 
 from .. import report
 from ..errors import BioscaraError
-from ..firmware import protocol as P
-from ..firmware import protocol_v2 as V
+from ..firmware.spec import protocol as P
+from ..firmware.spec import protocol_v2 as V
 from ..joint import Joint
 from ..session import Session
 

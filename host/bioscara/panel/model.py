@@ -21,7 +21,7 @@ from ..communicator import Communicator
 from ..config import ArmConfig
 from ..errors import (BioscaraError, CommError, IncorrectStateError, InvalidArgumentError, NotEnabledError,
                       StalledError)
-from ..firmware import protocol as P
+from ..firmware.spec import protocol as P
 from ..gripper import BaseGripper
 
 log = logging.getLogger("bioscara.panel")
