@@ -28,7 +28,6 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "bench")]
 
 from bioscara import circuitpy  # noqa: E402
-from bioscara.firmware import protocol as P  # noqa: E402
 from chip import fsimage  # noqa: E402
 from chip.board import EmulatedPico  # noqa: E402
 from chip.i2c import JointBusClient, joint_bus_plugin  # noqa: E402

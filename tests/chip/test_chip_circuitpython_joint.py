@@ -21,7 +21,7 @@ from chip.i2c import ChipBus, JointBusClient, joint_bus_plugin
 from chip.joint_devices import JOINT_DEVICES_PLUGIN, USTEPS_PER_REV, JointDevices
 from chip_bus import wait_on_bus
 from chip.testing import joint_image, requires_chip, requires_circuitpython  # noqa: F401 (a fixture)
-from joint import protocol as P
+from joint.spec import protocol as P
 
 pytestmark = [requires_chip, requires_circuitpython]
 
@@ -174,5 +174,10 @@ def test_home_ends_at_the_end_stop(circuitpython_joint) -> None:
     assert not flags & P.FLAG_BUSY, "homing ended"
     assert not flags & P.FLAG_NOTHOMED
     assert 0 <= state["rotor"]["position"] - stop < 512  # at the stop, or slipped back < 2 full steps
-    angle = bus.transfer(ADDRESS, bytes([P.ANGLEMOVED]), 5, gap_us=1000).data
-    assert abs(struct.unpack("<f", angle[:4])[0]) < 1.0  # zero is at the stop
+    angle = struct.unpack("<f", bus.transfer(ADDRESS, bytes([P.ANGLEMOVED]), 5, gap_us=1000).data[:4])[0]
+    blocked = state["rotor"]["blockedSteps"]
+    print(f"CircuitPython homing: rotor {state['rotor']['position'] - stop} usteps from the stop, encoder "
+          f"{angle:.2f} deg from its new zero, noticed after {blocked} blocked steps")
+    # Zero is where the joint noticed the stall: the rotor buzzing against the stop, within the
+    # same 2 full steps (3.6 deg) of it (MicroPython's faster loop notices it within 1 deg).
+    assert abs(angle) < 3.6
