@@ -10,7 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from bioscara import circuitpy, cli, flash
+from bioscara import circuitpy, cli
+from bioscara import firmware_flash as flash
 from bioscara.commands.ports import runtime_of
 from bioscara.mpboard import FlashError
 

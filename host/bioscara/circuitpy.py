@@ -32,7 +32,7 @@ from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
-from . import flash
+from . import firmware_flash as flash
 from .firmware import config as firmware_config
 from .mpboard import FlashError
 
