@@ -104,6 +104,9 @@ def run(args: argparse.Namespace, session: Session) -> int:
                                  "runtime": runtime}
         if runtime is not None and not args.no_probe:
             entry.update(probe(device))
+            if runtime == "circuitpython" and entry["kind"] == "MicroPython board":
+                # A REPL prompt without the banner: the USB identity tells the runtime.
+                entry.update(kind="CircuitPython board", use=FLASH_CIRCUITPYTHON)
         elif runtime == "circuitpython":
             entry.update(kind="CircuitPython board", detail="CircuitPython USB id (not probed)",
                          use=FLASH_CIRCUITPYTHON)
