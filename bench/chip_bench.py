@@ -108,7 +108,18 @@ def bus_figures() -> dict[str, float]:
     return chip_bus.deployed_figures()
 
 
-PRODUCERS: list[Callable[[], dict[str, float]]] = [main_loop_figures, trace_loop_figures, bus_figures]
+def circuitpython_figures() -> dict[str, float]:
+    """The CircuitPython joint's figures (bench/chip_cp.py, chip.cp.*), where its UF2 is present."""
+    problem = missing("circuitpython")
+    if problem:
+        print(f"chip.cp figures skipped: {problem}", file=sys.stderr)
+        return {}
+    import chip_cp
+    return chip_cp.circuitpython_figures()
+
+
+PRODUCERS: list[Callable[[], dict[str, float]]] = [main_loop_figures, trace_loop_figures, bus_figures,
+                                                   circuitpython_figures]
 
 
 def main() -> int:

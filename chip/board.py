@@ -25,7 +25,7 @@ from pathlib import Path
 from queue import Empty, Queue
 from typing import Any
 
-from .paths import CHIP_DIR, missing, rp2040_dir
+from .paths import CHIP_DIR, RUNTIMES, missing, rp2040_dir
 
 HARNESS = CHIP_DIR / "src" / "harness.mjs"
 PTY_BACKLOG = 1 << 20  # bytes kept for a pseudo-terminal nobody reads; older output is dropped
@@ -40,11 +40,14 @@ class BoardSpec:
     """One emulated Pico: its name on the control channel, and what is in its flash."""
 
     name: str = "pico"
-    fs_image: Path | None = None  # a littlefs image for flash offset 0xA0000 (see chip.fsimage)
-    uf2: Path | None = None  # default: the stock MicroPython UF2 in ../shared/rp2040
+    # MicroPython: a littlefs image for flash offset 0xA0000; CircuitPython: CIRCUITPY, a FAT image
+    # for 0x100000 (see chip.fsimage)
+    fs_image: Path | None = None
+    uf2: Path | None = None  # default: the runtime's stock UF2 in ../shared/rp2040
+    runtime: str = "micropython"  # or "circuitpython"
 
     def config(self, usb_fd: int) -> dict[str, Any]:
-        out: dict[str, Any] = {"name": self.name, "usbFd": usb_fd}
+        out: dict[str, Any] = {"name": self.name, "usbFd": usb_fd, "runtime": self.runtime}
         if self.fs_image is not None:
             out["fs"] = str(self.fs_image)
         if self.uf2 is not None:
@@ -67,15 +70,20 @@ class _Link:
 class EmulatedPico:
     """Emulated Picos in one node process, stepped together in emulated time."""
 
-    def __init__(self, fs_image: Path | None = None, *, boards: list[BoardSpec] | None = None,
+    def __init__(self, fs_image: Path | None = None, *, runtime: str = "micropython",
+                 boards: list[BoardSpec] | None = None,
                  plugins: list[dict[str, Any]] | None = None, quantum_ns: int = 10_000,
                  paused: bool = False, realtime: bool = True, startup_timeout: float = 30.0) -> None:
-        """`paused`: start stopped (step with run_for); `realtime`: a free-running board never runs
-        ahead of wall time (off: as fast as this machine allows, idle time included)."""
-        problem = missing()
+        """`runtime`: "micropython" or "circuitpython", the firmware of the one board `fs_image`
+        describes (`boards` name each board's own); `paused`: start stopped (step with run_for);
+        `realtime`: a free-running board never runs ahead of wall time (off: as fast as this
+        machine allows, idle time included)."""
+        if runtime not in RUNTIMES:
+            raise ChipError(f"unknown runtime {runtime!r}: one of {', '.join(RUNTIMES)}")
+        problem = missing(runtime)
         if problem:
             raise ChipError(problem)
-        self.specs = boards or [BoardSpec(fs_image=fs_image)]
+        self.specs = boards or [BoardSpec(fs_image=fs_image, runtime=runtime)]
         self.plugins = plugins or []
         self.quantum_ns = quantum_ns
         self.paused = paused
@@ -194,9 +202,14 @@ class EmulatedPico:
 
     def exec(self, code: str, name: str | None = None, timeout: float = 60.0, soft_reset: bool = False) -> str:
         """Runs `code` in the board's raw REPL (mpremote's transport); returns its output.
-        `soft_reset`: interrupt main.py and start from a fresh heap first, as mpremote does."""
+        `soft_reset`: interrupt main.py and start from a fresh heap first, as mpremote does
+        (MicroPython only)."""
         from mpremote.transport_serial import SerialTransport
 
+        if self._spec(name).runtime == "circuitpython":
+            if soft_reset:
+                raise ChipError("soft_reset: CircuitPython reloads code.py instead")
+            self._circuitpython_repl(name, timeout)
         transport = SerialTransport(self.port(name), baudrate=115200)
         try:
             transport.enter_raw_repl(soft_reset=soft_reset)
@@ -208,8 +221,35 @@ class EmulatedPico:
             transport.close()
         return out.decode(errors="replace")
 
+    def _spec(self, name: str | None) -> BoardSpec:
+        return next(spec for spec in self.specs if name in (None, spec.name))
+
+    def _circuitpython_repl(self, name: str | None, timeout: float) -> None:
+        """Interrupts code.py and takes CircuitPython to its REPL prompt. After Ctrl-C it waits for
+        "any key to enter the REPL" and would swallow the Ctrl-A of mpremote's raw REPL request."""
+        import serial
+
+        import time
+
+        console = serial.Serial(self.port(name), timeout=0.1)  # short reads: the deadline bounds it
+        try:
+            console.write(b"\x03")
+            seen = b""
+            pressed = False
+            deadline = time.monotonic() + timeout
+            while not seen.endswith(b">>> "):
+                if time.monotonic() > deadline:
+                    raise ChipError(f"CircuitPython gave no REPL prompt: {seen[-200:]!r}")
+                seen += console.read(4096)
+                if not pressed and b"any key to enter the REPL" in seen:
+                    console.write(b"\r")
+                    pressed = True
+        finally:
+            console.close()
+
     def fs_image(self, name: str | None = None) -> bytes:
-        """The board's littlefs region of flash as it is now (read it with chip.fsimage.read_image)."""
+        """The board's filesystem region of flash as it is now (read it with chip.fsimage.read_image,
+        or read_fat_image for CircuitPython's CIRCUITPY)."""
         import base64
 
         return base64.b64decode(self.request("fs", board=name)["image"])

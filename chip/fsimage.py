@@ -64,3 +64,62 @@ def joint_image(joint: str, path: Path | None = None) -> bytes:
     if path is not None:
         path.write_bytes(image)
     return image
+
+
+# CircuitPython 10.2.1 raspberry_pi_pico: CIRCUITPY is FAT at flash offset 0x100000, 1 MiB
+# (../shared/rp2040/README.md); 512-byte sectors as CircuitPython's own format uses.
+FAT_SIZE = 0x100000
+FAT_LABEL = "CIRCUITPY"
+
+
+def fat_image(files: dict[str, bytes]) -> bytes:
+    """A FAT12 image of CIRCUITPY holding `files` (absolute board path -> content), as
+    CircuitPython mounts it; built with pyfatfs in a temporary file."""
+    import tempfile
+
+    from pyfatfs.PyFat import PyFat
+    from pyfatfs.PyFatFS import PyFatFS
+
+    with tempfile.TemporaryDirectory() as scratch:
+        path = Path(scratch) / "circuitpy.img"
+        path.write_bytes(bytes(FAT_SIZE))  # zeros: pyfatfs mkfs leaves the root directory as it finds it
+        fat = PyFat()
+        fat.mkfs(str(path), PyFat.FAT_TYPE_FAT12, size=FAT_SIZE, label=FAT_LABEL)
+        fat.close()
+        fs = PyFatFS(str(path))
+        try:
+            for board_path, data in sorted(files.items()):
+                parent = board_path.rsplit("/", 1)[0]
+                if parent:
+                    fs.makedirs(parent, recreate=True)
+                fs.writebytes(board_path, data)
+        finally:
+            fs.close()
+        return path.read_bytes()
+
+
+def read_fat_image(image: bytes) -> dict[str, bytes]:
+    """Every file in a CIRCUITPY FAT image: absolute path -> content."""
+    import tempfile
+
+    from pyfatfs.PyFatFS import PyFatFS
+
+    with tempfile.TemporaryDirectory() as scratch:
+        path = Path(scratch) / "circuitpy.img"
+        path.write_bytes(image)
+        fs = PyFatFS(str(path), read_only=True)
+        try:
+            return {found: fs.readbytes(found) for found in fs.walk.files("/")}
+        finally:
+            fs.close()
+
+
+def circuitpython_joint_image(joint: str, path: Path | None = None) -> bytes:
+    """CIRCUITPY after `bioscara flash --runtime circuitpython --drive ... --joint <joint>`: the
+    same files (bioscara.circuitpy.build_image) in the FAT image; written to `path` if given."""
+    from bioscara import circuitpy
+
+    image = fat_image(circuitpy.build_image(joint).files)
+    if path is not None:
+        path.write_bytes(image)
+    return image

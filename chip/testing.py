@@ -28,3 +28,7 @@ def joint_image(tmp_path_factory: pytest.TempPathFactory) -> Path:
     path = tmp_path_factory.mktemp("chip") / "J1-littlefs.img"
     fsimage.joint_image("J1", path)
     return path
+
+_cp_problem = missing("circuitpython")
+requires_circuitpython = pytest.mark.skipif(_cp_problem is not None,
+                                            reason=f"emulated CircuitPython Pico: {_cp_problem}")

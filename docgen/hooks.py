@@ -40,7 +40,7 @@ PATH = re.compile(r"`((?:firmware|host|hil_bridge|tests|bench|chip|docgen)/[\w./
 # A file named by its path inside a package (`core/irq.py`, `test_stall.py`): some file of the
 # project must end with it. Board paths (`/main.py`, `joint/core.mpy`) are not the project's.
 MODULE = re.compile(r"`([\w/]*\w\.(?:py|json|mjs))`")
-BOARD_PATHS = {"main.py", "joint_config.json", "bridge_config.json", "boot.py"}
+BOARD_PATHS = {"main.py", "code.py", "boot.py", "boot_out.txt", "joint_config.json", "bridge_config.json"}
 # A dotted name of the host package or of the firmware as the board imports it (`joint.spec`):
 # it must import (then resolve attribute by attribute).
 DOTTED = re.compile(r"`((?:bioscara|joint)(?:\.\w+)+)(?:\(\))?`")

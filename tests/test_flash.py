@@ -152,7 +152,7 @@ def test_a_board_manifest_is_closed_under_import_and_holds_no_simulator_code(boa
 
 
 def test_an_unknown_board_manifest_is_a_clear_error():
-    with pytest.raises(ConfigError, match="no board manifest 'nano'; boards: pico, s32"):
+    with pytest.raises(ConfigError, match="no board manifest 'nano'; boards: pico, pico_circuitpython, s32"):
         firmware_flash.board_files("nano")
 
 

@@ -1,12 +1,14 @@
-// An emulated Raspberry Pi Pico: rp2040js's RP2040 with the RP2040 bootrom, a UF2 in flash, an
-// optional littlefs image, and our datasheet fixes (PL011 transmit FIFO and interrupt; a USB host
-// that NAKs OUT transfers until it has data; a flash chip the bootrom can erase and program). It runs only when stepped, in emulated time, so a run
-// is deterministic for a given sequence of inputs; several boards step together in a `World`.
+// An emulated Raspberry Pi Pico: rp2040js's RP2040 with the RP2040 bootrom, a UF2 in flash (stock
+// MicroPython or CircuitPython), an optional filesystem image (MicroPython's littlefs or the
+// CIRCUITPY FAT), and our datasheet fixes (PL011 transmit FIFO and interrupt; a USB host that NAKs
+// OUT transfers until it has data; a flash chip the bootrom can erase and program; the BOOTSEL
+// button released). It runs only when stepped, in emulated time, so a run is deterministic for a
+// given sequence of inputs; several boards step together in a `World`.
 import { readFileSync } from 'node:fs';
 import { resolve } from 'node:path';
 import { ConsoleLogger, LogLevel, RP2040, USBCDC } from 'rp2040js';
 import { installFlash } from './flash.mjs';
-import { BOOTROM_NAME, rp2040Dir, UF2_NAME } from './paths.mjs';
+import { BOOTROM_NAME, CIRCUITPYTHON_UF2_NAME, rp2040Dir, UF2_NAME } from './paths.mjs';
 import { uf2Blocks } from './uf2.mjs';
 import { installPL011 } from './uart.mjs';
 import { PioClock } from './pio-clock.mjs';
@@ -17,21 +19,38 @@ export const DEFAULT_BOOTROM = resolve(rp2040Dir(), BOOTROM_NAME);
 export const FLASH_BASE = 0x10000000;
 export const FS_OFFSET = 0xa0000; // MicroPython RPI_PICO: littlefs v2, 352 blocks of 4096 bytes
 export const FS_SIZE = 352 * 4096;
+export const QSPI_SS = 1; // the flash chip select, GPIO_HI_IN bit 1: the BOOTSEL button's sense line
+const QSPI_SS_PAD_RESET = 0x5a;
+
+// What each firmware needs from flash: its UF2 and where its filesystem lives. CircuitPython 10.2.1
+// (raspberry_pi_pico) keeps CIRCUITPY, FAT, in the second MiB of the 2 MiB flash (it reads the flash
+// ID as 0 here and assumes 2 MiB).
+export const RUNTIMES = {
+  micropython: { uf2: resolve(rp2040Dir(), UF2_NAME), fsOffset: FS_OFFSET, fsSize: FS_SIZE },
+  circuitpython: { uf2: resolve(rp2040Dir(), CIRCUITPYTHON_UF2_NAME), fsOffset: 0x100000, fsSize: 0x100000 },
+};
 
 export class Board {
   /**
    * @param {object} options
    * @param {string} [options.name] a label for logs and the control channel
+   * @param {string} [options.runtime] 'micropython' (default) or 'circuitpython': the default UF2
+   *   and where the filesystem image goes (RUNTIMES)
    * @param {string|Uint8Array} [options.uf2] firmware image (path or bytes)
    * @param {string|Uint8Array} [options.bootrom] RP2040 mask ROM (path or bytes)
-   * @param {string|Uint8Array} [options.fs] littlefs image written at flash offset 0xA0000
+   * @param {string|Uint8Array} [options.fs] filesystem image: littlefs at flash offset 0xA0000
+   *   (MicroPython), FAT at 0x100000 (CircuitPython)
    * @param {boolean} [options.stockUsb] keep rp2040js's own USB CDC host (for tests of the fix)
    * @param {boolean} [options.stockUart] keep rp2040js's own UARTs (for tests of the fix)
    * @param {boolean} [options.stockPio] keep rp2040js's free-running PIO (for tests of the fix)
+   * @param {boolean} [options.stockQspi] keep rp2040js's QSPI pads reading 0 (BOOTSEL held)
    */
-  constructor({ name = 'pico', uf2 = DEFAULT_UF2, bootrom = DEFAULT_BOOTROM, fs = null,
-    stockUsb = false, stockUart = false, stockPio = false, logLevel = LogLevel.Error } = {}) {
+  constructor({ name = 'pico', runtime = 'micropython', uf2 = null, bootrom = DEFAULT_BOOTROM, fs = null,
+    stockUsb = false, stockUart = false, stockPio = false, stockQspi = false, logLevel = LogLevel.Error } = {}) {
     this.name = name;
+    this.runtime = RUNTIMES[runtime];
+    if (!this.runtime) throw new Error(`unknown runtime ${runtime}: one of ${Object.keys(RUNTIMES)}`);
+    uf2 ??= this.runtime.uf2;
     const mcu = new RP2040(); // with its own SimulationClock: each board keeps its own time
     this.rp2040 = mcu;
     this.clock = mcu.clock;
@@ -46,7 +65,16 @@ export class Board {
         mcu.flash.set(payload, address - FLASH_BASE);
       }
     }
-    if (fs) this.writeFlash(FS_OFFSET, bytesOf(fs), FS_SIZE);
+    if (fs) this.writeFlash(this.runtime.fsOffset, bytesOf(fs), this.runtime.fsSize);
+    // The flash chip select has a pull-up: with BOOTSEL released it reads 1 while it floats.
+    // rp2040js leaves IO_QSPI unimplemented and its pads with input disabled, so every QSPI line
+    // reads 0, which is the button held; CircuitPython samples it at boot (floats CS, reads
+    // GPIO_HI_IN bit 1) and then waits forever. The SS pad gets its reset value (PADS_QSPI
+    // GPIO_QSPI_SS 0x5a: input enabled, pull-up) and the line its level.
+    if (!stockQspi) {
+      mcu.qspi[QSPI_SS].padValue = QSPI_SS_PAD_RESET;
+      mcu.qspi[QSPI_SS].setInputValue(true);
+    }
     this.cdc = stockUsb ? new StockCDCAdapter(mcu.usbCtrl) : new HostCDC(mcu.usbCtrl);
     this.usbListeners = new Set();
     this.cdc.onSerialData = (buffer) => {
@@ -63,9 +91,10 @@ export class Board {
     this.rp2040.flash.set(bytes, offset);
   }
 
-  /** The filesystem region of flash (littlefs), as MicroPython has left it. */
+  /** The filesystem region of flash (littlefs or FAT), as the firmware has left it. */
   fsImage() {
-    return this.rp2040.flash.slice(FS_OFFSET, FS_OFFSET + FS_SIZE);
+    const { fsOffset, fsSize } = this.runtime;
+    return this.rp2040.flash.slice(fsOffset, fsOffset + fsSize);
   }
 
   /** Emulated time in nanoseconds since power-on. */

@@ -6,6 +6,7 @@ import { fileURLToPath } from 'node:url';
 
 export const REPO = resolve(dirname(fileURLToPath(import.meta.url)), '../..');
 export const UF2_NAME = 'micropython-v1.28.0-RPI_PICO.uf2';
+export const CIRCUITPYTHON_UF2_NAME = 'circuitpython-10.2.1-raspberry_pi_pico.uf2';
 export const BOOTROM_NAME = 'rp2040-bootrom-B1.bin';
 
 function mainCheckout(repo) {

@@ -30,9 +30,10 @@ def build_motor(cfg):
     raise ValueError("motor backend %r cannot run on a board" % cfg.motor.get("backend"))
 
 
-def build(machine, config_path=CONFIG_FILE, clock=None, write=None, cfg=None):
+def build(machine, config_path=CONFIG_FILE, clock=None, write=None, cfg=None, motor_builder=build_motor):
     """Load the configuration (unless `cfg` is given: a board without a filesystem) and create
-    the controller; returns (core, cfg, log)."""
+    the controller; returns (core, cfg, log). `machine` None: no interrupt shares the core's state
+    (CircuitPython polls its I2C target)."""
     if cfg is None:
         from .config import schema as config  # boot only (see _drop_boot_only)
         cfg = config.load(config_path)
@@ -40,11 +41,11 @@ def build(machine, config_path=CONFIG_FILE, clock=None, write=None, cfg=None):
     motor = None
     if cfg.valid:
         try:
-            motor = build_motor(cfg)
+            motor = motor_builder(cfg)
         except Exception as exc:
             cfg.errors.append("motor backend failed to start: %r" % (exc,))
-    core = JointController(motor, clock or MonotonicClock(), cfg, log,
-                           critical=(machine.disable_irq, machine.enable_irq))
+    critical = None if machine is None else (machine.disable_irq, machine.enable_irq)
+    core = JointController(motor, clock or MonotonicClock(), cfg, log, critical=critical)
     _drop_boot_only()
     return core, cfg, log
 
@@ -61,7 +62,7 @@ def _drop_boot_only():
     """On the board, forget the boot-only modules: out of sys.modules and their packages, their
     code and tables are collected. Importing one again simply reloads it."""
     import sys
-    if sys.implementation.name != "micropython":
+    if sys.implementation.name == "cpython":
         return
     package = __name__[:-len("app")]  # "joint."
     for path in BOOT_ONLY:

@@ -1,8 +1,11 @@
-"""CircuitPython `i2ctarget` adapter: the same joint core, polled from the main loop.
+"""CircuitPython `i2ctarget` link: the same joint core, polled from the main loop.
 
-CircuitPython has no I2C IRQ callbacks; it stretches the clock while Python answers a request,
-which Raspberry Pi 0-3 controllers mishandle (reference/i2c-facts.md sections 3-4). Call `poll()`
-from the main loop, right after `JointController.service()`.
+CircuitPython has no I2C IRQ callbacks and no memory-mode target: `i2ctarget.I2CTarget` holds SCL
+low on a read (and on a full RX FIFO) until Python answers `request()`, so the host waits for the
+main loop (reference/i2c-facts.md sections 3-4: Raspberry Pi 0-3 controllers mishandle that).
+The loop calls `poll()` between its steps, and the longest step sets how long SCL is held.
+Each request is an object CircuitPython allocates, and a write's bytes another; the reply goes
+out through one of the memoryviews made here, so nothing else allocates.
 """
 
 from ..spec.protocol import MAX_FRAME, MAX_REPLY
@@ -14,6 +17,9 @@ class CircuitPythonTargetAdapter:
         self._target = target
         self._frame = bytearray(MAX_FRAME)
         self._reply = bytearray(MAX_REPLY)
+        whole = memoryview(self._reply)
+        self._tails = tuple(whole[MAX_REPLY - n:] for n in range(MAX_REPLY + 1))  # by reply length
+        self.served = 0  # requests answered (wraps like the core's counters)
 
     def poll(self):
         """Serve at most one pending request; returns True if there was one."""
@@ -22,13 +28,17 @@ class CircuitPythonTargetAdapter:
             return False
         with request:
             if request.is_read:
-                n = self._core.reply_into(self._reply)
-                request.write(self._reply[MAX_REPLY - n:])
+                request.write(self._tails[self._core.reply_into(self._reply)])
             else:
                 data = request.read()
                 n = len(data)
-                for i in range(min(n, MAX_FRAME)):
-                    self._frame[i] = data[i]
-                self._core.on_frame(self._frame, n)
+                frame = self._frame
+                for i in range(n if n < MAX_FRAME else MAX_FRAME):
+                    frame[i] = data[i]
+                self._core.on_frame(frame, n)
         self._core.host_seen()
+        self.served = (self.served + 1) & 0x3FFFFFFF
         return True
+
+    def deinit(self):
+        self._target.deinit()

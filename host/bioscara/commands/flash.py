@@ -1,5 +1,6 @@
 """`bioscara flash PORT --joint j1`: deploy the joint firmware onto a MicroPython board;
-`bioscara flash --joint j1 --dry-run`: what it would deploy, without a board."""
+`bioscara flash --runtime circuitpython --drive /media/$USER/CIRCUITPY --joint j1`: onto a
+CircuitPython board's drive; `bioscara flash --joint j1 --dry-run`: what it would deploy."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ import json
 from rich.progress import BarColumn, DownloadColumn, Progress, TextColumn
 from rich.text import Text
 
-from .. import firmware_flash, mpboard, s32flash
+from .. import circuitpy, firmware_flash, mpboard, s32flash
 from ..errors import InvalidArgumentError
 from ..session import Session
 from .options import shown
@@ -28,6 +29,12 @@ USES = ("bus", "json")  # --bus for the version check, which needs no --protocol
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("port", nargs="?", help="the board's serial port, e.g. /dev/ttyACM0 or COM3 "
                         "(`bioscara ports` lists them); not needed with --dry-run")
+    parser.add_argument("--runtime", choices=("micropython", "circuitpython"), default="micropython",
+                        help="the board's firmware: micropython (default: copied over the serial PORT with "
+                        "mpremote) or circuitpython (copied onto its CIRCUITPY drive, --drive)")
+    parser.add_argument("--drive", metavar="DIR",
+                        help="with --runtime circuitpython: where the board's CIRCUITPY drive is mounted, "
+                        "e.g. /media/$USER/CIRCUITPY, /Volumes/CIRCUITPY or D:\\")
     parser.add_argument("--joint", type=_joint, metavar="JOINT",
                         help="j1..j4: which joint the board drives; the shipped configuration of that joint "
                         "goes to /joint_config.json (not needed with --joint-config)")
@@ -36,7 +43,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "resistor...): validated as the firmware will, before the board is touched")
     parser.add_argument("--show-config", action="store_true",
                         help="only show the board's current /joint_config.json (and whether it is valid)")
-    parser.add_argument("--board", choices=firmware_flash.boards(), default=firmware_flash.DEFAULT_BOARD,
+    parser.add_argument("--board", choices=[b for b in firmware_flash.boards() if not b.endswith("_circuitpython")],
+                        default=firmware_flash.DEFAULT_BOARD,
                         help="which board's manifest to deploy (firmware/joint/boards/BOARD.py; default: %(default)s); "
                         "s32: a uStepper S32 in its ROM DFU bootloader (BOOT0), written with dfu-util: the image "
                         "from `make s32-image` and the joint's configuration (docs/s32.md)")
@@ -61,6 +69,8 @@ def _joint(text: str) -> str:
 
 
 def run(args: argparse.Namespace, session: Session) -> int:
+    if args.runtime == "circuitpython" or args.drive:
+        return _run_circuitpython(args, session)
     if args.board == "s32":
         return _run_s32(args, session)
     if args.show_config:
@@ -221,3 +231,52 @@ def _render(plan: firmware_flash.Plan, dry_run: bool, identity: firmware_flash.I
         out.append(f"version check: 0x{identity.address:02x} runs firmware {found.get('firmware')} "
                    f"as joint {found.get('joint_id')}, same protocol spec", style="green")
     return out
+
+
+def _run_circuitpython(args: argparse.Namespace, session: Session) -> int:
+    """Copy the joint onto a CIRCUITPY drive and verify it (bioscara.circuitpy)."""
+    if args.runtime != "circuitpython":
+        raise InvalidArgumentError("--drive is for CircuitPython boards: add --runtime circuitpython")
+    for given, option in ((args.port, "PORT"), (args.show_config, "--show-config"), (args.bus, "--bus"),
+                          (args.debug, "--debug")):
+        if given:
+            raise InvalidArgumentError(f"{option} is for MicroPython boards; a CircuitPython board is flashed "
+                                       "through its drive (--drive DIR)")
+    if args.drive is None and not args.dry_run:
+        raise InvalidArgumentError("where is the board's CIRCUITPY drive? give --drive DIR (e.g. "
+                                   "/media/$USER/CIRCUITPY), or --dry-run to see what would be copied")
+    config = firmware_flash.user_joint_config(args.joint_config) if args.joint_config else None
+    joint = config[1].joint if config is not None else args.joint
+    if joint is None:
+        raise InvalidArgumentError("which joint? give --joint j1..j4, or --joint-config FILE.json")
+    if args.drive is None:
+        image = circuitpy.build_image(joint, config)
+        files = {path: len(data) for path, data in image.files.items()}
+        text = Text(f"what --runtime circuitpython would copy onto CIRCUITPY for {joint.lower()} "
+                    f"(I2C 0x{image.address:02x}), {image.build}:\n")
+        for path, size in files.items():
+            text.append(f"  {path:<36} {size:>7,} B\n")
+        session.emit({"joint": joint.lower(), "runtime": "circuitpython", "drive": None, "files": files,
+                      "build": image.build, "dry_run": True}, text)
+        return 0
+    plan = circuitpy.plan(args.drive, joint, config)
+    if not args.dry_run:
+        circuitpy.apply(plan)
+    files = plan.image.files
+    result = {"joint": joint.lower(), "runtime": "circuitpython", "drive": str(plan.drive), "board": plan.boot_out,
+              "build": plan.image.build, "files": {p: len(d) for p, d in files.items()},
+              "added": list(plan.added), "updated": list(plan.updated), "unchanged": list(plan.unchanged),
+              "removed": list(plan.stale), "write_bytes": plan.write_bytes, "dry_run": args.dry_run,
+              "verified": not args.dry_run}
+    text = Text(f"{plan.drive}: {plan.boot_out}\nfirmware {firmware_flash.FIRMWARE} for {joint.lower()} "
+                f"(I2C 0x{plan.image.address:02x}), {plan.image.build}\n")
+    labels = ("add", "update", "remove") if args.dry_run else ("added", "updated", "removed")
+    for label, paths, style in zip(labels, (plan.added, plan.updated, plan.stale), ("green", "cyan", "red")):
+        for path in paths:
+            size = f"{len(files[path]):>7,} B" if path in files else ""
+            text.append(f"  {label:<8} {path:<36} {size}\n", style=style)
+    text.append(f"  {len(plan.unchanged)} file(s) unchanged; {plan.write_bytes:,} bytes to write\n")
+    text.append("dry run, nothing was changed" if args.dry_run else
+                "verified (SHA-256 of every file); CircuitPython restarts code.py by itself")
+    session.emit(result, text)
+    return 0

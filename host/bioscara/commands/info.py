@@ -45,6 +45,7 @@ def run(args: argparse.Namespace, session: Session) -> int:
     except NotHomedError:
         info["position"] = None
     info["velocity"] = joint.get_velocity()
+    info["protocol"] = joint.protocol  # how this reader reached the joint (readers never switch it to v2)
     holder = getattr(joint.link, "holder", None)
     info["commanded_by"] = None if holder is None else {"pid": holder.pid, "program": holder.program}
     info["flags"] = report.flags(joint.flags)
@@ -71,6 +72,7 @@ def _table(info: dict[str, Any], jc: Any, session: Session) -> Table:
                   + (f" (last: {info['last_rejected']})" if info["last_rejected"] else ""))]
     rows += [("commanded by", "no program" if info["commanded_by"] is None else
               f"pid {info['commanded_by']['pid']} ({info['commanded_by']['program']}): its latest reading"),
+             ("protocol", str(info["protocol"])),
              ("position", "not homed" if info["position"] is None else report.value(info["position"], jc)),
              ("velocity", report.value(info["velocity"], jc, per_second=True)),
              ("flags", "|".join(info["flags"]) or "-"),

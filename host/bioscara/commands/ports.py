@@ -1,5 +1,6 @@
-"""`bioscara ports [PATH...]`: the serial ports, and which are HIL bridges, joint debug ports or
-MicroPython boards (pyserial's list_ports, then a short probe of each candidate)."""
+"""`bioscara ports [PATH...]`: the serial ports, and which are HIL bridges, joint debug ports,
+MicroPython or CircuitPython boards (pyserial's list_ports and the USB ids, then a short probe of
+each candidate)."""
 
 from __future__ import annotations
 
@@ -15,7 +16,8 @@ from ..session import Session
 
 NAME = "ports"
 HELP = ("list the serial ports and say which are HIL bridges (--bus serial:PORT), joint debug ports "
-        "(bioscara console PORT) or MicroPython boards (bioscara flash PORT)")
+        "(bioscara console PORT), MicroPython boards (bioscara flash PORT) or CircuitPython boards "
+        "(bioscara flash --runtime circuitpython --drive DIR)")
 EXAMPLES = (
     ('bioscara ports', 'the serial ports and what each is'),
     ('bioscara ports /dev/pts/7', 'also probe a pseudo-terminal (from `bioscara sim`)'),
@@ -23,6 +25,20 @@ EXAMPLES = (
 USES = ("json",)
 # USB vendor ids of boards that run MicroPython: Raspberry Pi (Pico), MicroPython's own.
 MICROPYTHON_VIDS = {0x2E8A: "Raspberry Pi", 0xF055: "MicroPython"}
+# CircuitPython presents every board under Adafruit's vendor id (the Pico: 239a:80f4), and names
+# its serial interface "CircuitPython CDC control"; MicroPython's Pico is 2e8a:0005.
+CIRCUITPYTHON_VID = 0x239A
+FLASH_CIRCUITPYTHON = "bioscara flash --runtime circuitpython --drive /path/to/CIRCUITPY --joint j1"
+
+
+def runtime_of(vid: int | None, pid: int | None, product: str | None, interface: str | None) -> str | None:
+    """"circuitpython", "micropython" or None (unknown) from a port's USB identity."""
+    names = f"{product or ''} {interface or ''}"
+    if vid == CIRCUITPYTHON_VID or "CircuitPython" in names:
+        return "circuitpython"
+    if vid in MICROPYTHON_VIDS or "MicroPython" in names:
+        return "micropython"
+    return None
 _STATUS = re.compile(r"\b(J[1-4]) at 0x([0-9a-f]{2})")
 
 
@@ -69,6 +85,9 @@ def probe(path: str) -> dict[str, Any]:
     if found:
         return {"kind": "joint debug port", "detail": f"{found.group(1).lower()} at 0x{found.group(2)}",
                 "use": f"bioscara console {path}"}
+    if "CircuitPython" in text:
+        return {"kind": "CircuitPython board", "detail": "REPL (no joint firmware running)",
+                "use": FLASH_CIRCUITPYTHON}
     if ">>>" in text or "Traceback" in text or "MicroPython" in text:
         return {"kind": "MicroPython board", "detail": "REPL (no joint firmware running)",
                 "use": f"bioscara flash {path} --joint j1"}
@@ -83,19 +102,27 @@ def run(args: argparse.Namespace, session: Session) -> int:
     for device, info in sorted(listed.items()):
         if info.vid is None and device not in args.paths:
             continue  # legacy UARTs without a USB identity (ttyS*): not a board
-        maker = MICROPYTHON_VIDS.get(info.vid or -1)
+        runtime = runtime_of(info.vid, info.pid, info.product, info.interface)
         entry: dict[str, Any] = {"port": device, "usb": f"{info.vid:04x}:{info.pid:04x}" if info.vid else None,
-                                 "description": info.description, "micropython_vendor": maker is not None}
-        if maker is not None and not args.no_probe:
+                                 "description": info.description, "micropython_vendor": runtime == "micropython",
+                                 "runtime": runtime}
+        if runtime is not None and not args.no_probe:
             entry.update(probe(device))
-        elif maker is not None:
-            entry.update(kind="MicroPython board", detail=f"{maker} USB id (not probed)")
+            if runtime == "circuitpython" and entry["kind"] == "MicroPython board":
+                # A REPL prompt without the banner: the USB identity tells the runtime.
+                entry.update(kind="CircuitPython board", use=FLASH_CIRCUITPYTHON)
+        elif runtime == "circuitpython":
+            entry.update(kind="CircuitPython board", detail="CircuitPython USB id (not probed)",
+                         use=FLASH_CIRCUITPYTHON)
+        elif runtime is not None:
+            entry.update(kind="MicroPython board",
+                         detail=f"{MICROPYTHON_VIDS.get(info.vid or -1, 'MicroPython')} USB id (not probed)")
         else:
             entry.update(kind="serial port", detail=info.description or "")
         entries.append(entry)
     for path in args.paths:
         if path not in listed:
-            entry = {"port": path, "usb": None, "description": "", "micropython_vendor": False}
+            entry = {"port": path, "usb": None, "description": "", "micropython_vendor": False, "runtime": None}
             entry.update(probe(path) if not args.no_probe else {"kind": "serial port", "detail": "not probed"})
             entries.append(entry)
     table = Table("port", "is", "detail", "use with", box=None)

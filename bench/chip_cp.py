@@ -1,0 +1,142 @@
+"""CircuitPython joint figures for `make bench-chip` (`chip.cp.*`): J1 flashed as
+`bioscara flash --runtime circuitpython` leaves CIRCUITPY, on the emulated Pico with its devices and
+the joint bus, every figure in emulated time.
+
+* `chip.cp.heap_free_after_boot`: bytes of heap free when the loop starts (after a collection);
+* `chip.cp.scl_held_us.<kHz>.{median,p99,max}`: SCL held by the joint per register transaction
+  as the original host makes it (REGISTERS, SAMPLES transactions each, gaps sweeping the loop's
+  1 ms phase), and `chip.cp.scl_held_us.<kHz>.<REGISTER>` each register's median;
+  `chip.cp.failed_transactions` counts NAKs and stretch timeouts, `chip.cp.wrong_replies` replies
+  of the registers that do not change at rest (STATIC) that differ from their first reply;
+* with the original host cycling at 100 Hz in the background (chip_bus.host_cycle), the loop's own
+  figures (firmware/joint/cpy/app.py LoopMeter, over METER_ITERATIONS iterations):
+  `chip.cp.loop_hz`, `chip.cp.iteration_us.{median,p99,max}` (the work before the wait for the
+  next tick), `chip.cp.alloc_bytes_per_iteration`, `chip.cp.collections_per_s`,
+  `chip.cp.collect_us.{mean,max}`. The meter reads the microsecond clock twice an iteration,
+  which allocates on CircuitPython: a few bytes of the allocation figure are its own.
+"""
+
+from __future__ import annotations
+
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path[:0] = [str(ROOT), str(ROOT / "bench")]
+
+from bioscara import circuitpy  # noqa: E402
+from chip import fsimage  # noqa: E402
+from chip.board import EmulatedPico  # noqa: E402
+from chip.i2c import JointBusClient, joint_bus_plugin  # noqa: E402
+from chip.joint_devices import JOINT_DEVICES_PLUGIN  # noqa: E402
+from chip_bus import enable, host_cycle, legacy_transaction  # noqa: E402
+
+REGISTERS = ("PING", "ANGLEMOVED", "GETENCODERRPM", "GETPIDERROR", "IDENTITY", "LASTERROR")
+SAMPLES = 10  # transactions per register and bus speed
+PHASE_STEP_US = 37  # each gap 37 us longer than the one before: the requests sweep the loop's phase
+STATIC = ("PING", "IDENTITY", "LASTERROR")  # the others follow the encoder, settling after boot
+METER_ITERATIONS = 500  # one report's iterations (the emulated CircuitPython loop is slow to run)
+SPEEDS_KHZ = (100, 400)
+
+
+def bench_code(meter_every: int) -> bytes:
+    return f"from joint.cpy import app\n\napp.run(meter_every={meter_every})\n".encode()
+
+
+def percentile(values: list[float], q: float) -> float:
+    ordered = sorted(values)
+    return ordered[min(len(ordered) - 1, int(q * len(ordered)))]
+
+
+def _read_console(console, until: bytes, timeout: float, seen: bytes = b"") -> bytes:
+    end = time.monotonic() + timeout
+    while until not in seen and time.monotonic() < end:
+        seen += console.read(4096)
+    return seen
+
+
+def scl_figures(bus: JointBusClient) -> dict[str, float]:
+    figures: dict[str, float] = {}
+    failed = wrong = 0
+    for khz in SPEEDS_KHZ:
+        bus.set_khz(khz)
+        held: list[float] = []
+        for name in REGISTERS:
+            write, read_len = legacy_transaction(name)
+            mine, first = [], None
+            for i in range(SAMPLES):
+                t = bus.transfer(0x11, write, read_len, gap_us=1000 + i * PHASE_STEP_US)
+                first = t.data if first is None else first
+                if not t.ack or t.timed_out:
+                    failed += 1
+                elif name in STATIC and t.data != first:
+                    wrong += 1
+                mine.append(t.scl_held_us)
+            figures[f"chip.cp.scl_held_us.{khz}.{name}"] = round(statistics.median(mine), 1)
+            held += mine
+        figures[f"chip.cp.scl_held_us.{khz}.median"] = round(statistics.median(held), 1)
+        figures[f"chip.cp.scl_held_us.{khz}.p99"] = round(percentile(held, 0.99), 1)
+        figures[f"chip.cp.scl_held_us.{khz}.max"] = round(max(held), 1)
+    bus.set_khz(400)
+    figures["chip.cp.failed_transactions"] = failed
+    figures["chip.cp.wrong_replies"] = wrong
+    return figures
+
+
+def circuitpython_figures() -> dict[str, float]:
+    import serial
+
+    files = dict(circuitpy.build_image("J1").files)
+    files[circuitpy.CODE_PATH] = bench_code(METER_ITERATIONS)
+    figures: dict[str, float] = {}
+    with tempfile.TemporaryDirectory() as directory:
+        image = Path(directory) / "circuitpy.img"
+        image.write_bytes(fsimage.fat_image(files))
+        plugins = [JOINT_DEVICES_PLUGIN, joint_bus_plugin(khz=400)]
+        with EmulatedPico(image, runtime="circuitpython", plugins=plugins) as pico, \
+                serial.Serial(pico.port(), timeout=0.2) as console:
+            seen = _read_console(console, b"bytes of heap free", 600)
+            line = seen.split(b"CircuitPython joint: ", 1)[1].split(b" bytes", 1)[0]
+            figures["chip.cp.heap_free_after_boot"] = int(line)
+            bus = JointBusClient(pico)
+            if not enable(bus):
+                raise RuntimeError("the CircuitPython joint did not enable (SETUP)")
+            figures.update(scl_figures(bus))
+            for name, value in figures.items():  # partial figures survive a later failure
+                print(f"{name} {value:g}", file=sys.stderr)
+            host_cycle(pico)
+            # The first report may cover the SCL phase; the second is the host's cycle alone.
+            seen = _read_console(console, b"cp.heap.free", 900)
+            if b"cp.heap.free" not in seen:
+                raise RuntimeError("the CircuitPython joint's loop reported no figures")
+            seen = _read_console(console, b"cp.heap.free", 900, seen.rsplit(b"cp.heap.free", 1)[1])
+            report = seen.decode(errors="replace")
+    names = {"cp.loop.hz": "chip.cp.loop_hz", "cp.loop.iteration_us.median": "chip.cp.iteration_us.median",
+             "cp.loop.iteration_us.p99": "chip.cp.iteration_us.p99", "cp.loop.iteration_us.max": "chip.cp.iteration_us.max",
+             "cp.loop.alloc_bytes_per_iteration": "chip.cp.alloc_bytes_per_iteration",
+             "cp.gc.collections_per_s": "chip.cp.collections_per_s", "cp.gc.collect_us.mean": "chip.cp.collect_us.mean",
+             "cp.gc.collect_us.max": "chip.cp.collect_us.max", "cp.heap.free": "chip.cp.heap_free_in_loop"}
+    for line in report.splitlines():
+        parts = line.split()
+        if len(parts) == 2 and parts[0] in names:
+            figures[names[parts[0]]] = float(parts[1])
+    return figures
+
+
+def main() -> int:
+    from chip.paths import missing
+
+    problem = missing("circuitpython")
+    if problem:
+        print(f"chip.cp figures skipped: {problem}", file=sys.stderr)
+        return 0
+    for name, value in circuitpython_figures().items():
+        print(f"{name} {value:g}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,230 @@
+"""Boot the joint on CircuitPython and run its main loop: the core, the configuration and the
+debug console of app.py, the motor on hardware.py's objects, the joint bus through `i2ctarget`
+polled by the loop (cp_target.py).
+
+The loop serves the bus before and after the core's iteration and while it waits for the next
+millisecond tick (supervisor.ticks_ms: a small int, where time.monotonic_ns allocates a long int
+every call), so the host waits at most about one core iteration for a reply. The garbage
+collector is the loop's: automatic collection is off, and the heap is collected once the bus has
+been quiet for a while (hosts poll in bursts) after `every` iterations, at once after twice that.
+`every` is set at the start from the allocation of the first CALIBRATE iterations, so that two
+periods use at most half the heap free after a collection (gc.mem_free walks the whole heap, about
+as long as a core iteration: it is read at the start only).
+CircuitPython lacks what MicroPython gives the core (native and viper code, time.ticks_*): the
+same core runs as bytecode on the CPython clock of clock.py (docs/circuitpython.md has the costs).
+"""
+
+from .. import app as mp_app
+from ..links.cp_target import CircuitPythonTargetAdapter
+from ..console.debug import DebugConsole
+from ..config.settings import CONFIG_FILE
+
+SLOW_EVERY_MASK = 3  # the console: every 4th iteration
+QUIET_MS = 3  # a collection waits for this many millisecond ticks without a request ...
+CALIBRATE = 8  # iterations whose allocation sets how often the loop collects
+HEAP_SHARE = 4  # ... `every` iterations use at most this share of the free heap (forced at 2x)
+TICKS_MASK = 0x1FFFFFFF  # supervisor.ticks_ms wraps at 2**29
+PROTOCOL_V2 = 2  # protocol_v2.PROTOCOL_V2, without loading the v2 spec
+
+
+def build_motor(cfg):
+    if cfg.motor.get("backend") == "pico":
+        from ..pico.motor import PicoStepper
+        from .hardware import build_stepper
+        return build_stepper(PicoStepper, cfg.motor, None)
+    raise ValueError("motor backend %r cannot run on a board" % cfg.motor.get("backend"))
+
+
+def boot(config_path=CONFIG_FILE):
+    """app.boot on CircuitPython: the controller built and its boot task run to its end."""
+    import time
+
+    core, cfg, log = mp_app.build(None, config_path, motor_builder=build_motor)
+    while not core.ready:
+        core.service()
+        time.sleep(0.001)
+    mp_app._drop_boot_only()
+    return core, cfg, log
+
+
+def join_bus(core, cfg, log):
+    """The legacy map on an i2ctarget.I2CTarget at the configured address and pins."""
+    if cfg.address is None:
+        log.error("no valid I2C address configured: not joining the bus")
+        return None
+    i2c = cfg.i2c
+    try:
+        import i2ctarget
+        from .hardware import gpio
+        target = i2ctarget.I2CTarget(gpio(i2c.scl), gpio(i2c.sda), (cfg.address,))
+    except (ValueError, OSError, RuntimeError, ImportError) as exc:
+        log.error("cannot join the bus as I2C target 0x%02x (SDA %d, SCL %d): %r"
+                  % (cfg.address, i2c.sda, i2c.scl, exc))
+        return None
+    return CircuitPythonTargetAdapter(core, target)
+
+
+class SerialConsole:
+    """The USB serial console for DebugConsole: `read(buf)` takes only bytes already there,
+    `write(line)` prints a line (a str, or the trace's bytes)."""
+
+    def __init__(self):
+        import sys
+        import supervisor
+
+        self._runtime = supervisor.runtime
+        self._stdin = sys.stdin
+        self._stdout = sys.stdout
+
+    def read(self, buf):
+        n = 0
+        while n < len(buf) and self._runtime.serial_bytes_available:
+            buf[n] = ord(self._stdin.read(1))
+            n += 1
+        return n
+
+    def write(self, line):
+        self._stdout.write(line if isinstance(line, str) else str(bytes(line), "ascii"))
+        self._stdout.write("\n")
+
+
+class LoopMeter:
+    """Figures of the running loop for the benchmark: iteration times (us, the work before the
+    wait), collections and their times; `report()` prints them as `name value` lines and starts
+    over. It reads the microsecond clock, which allocates on CircuitPython: a few bytes more per
+    iteration than the joint without it."""
+
+    def __init__(self, every):
+        from array import array
+
+        self.every = every
+        self.times = array("H", bytes(2 * every))
+        self.count = 0
+        self.collections = 0
+        self.collect_us = 0
+        self.collect_max_us = 0
+        self.allocated = 0  # bytes allocated since the last report
+        self.base = 0  # gc.mem_alloc() after the last collection or report
+
+    def add(self, spent):
+        self.times[self.count] = spent if spent < 65535 else 65535
+        self.count += 1
+
+    def collect(self, gc, ticks_us):
+        self.allocated += gc.mem_alloc() - self.base
+        start = ticks_us()
+        gc.collect()
+        spent = ticks_us() - start
+        self.base = gc.mem_alloc()
+        self.collections += 1
+        self.collect_us += spent
+        if spent > self.collect_max_us:
+            self.collect_max_us = spent
+
+    def report(self, gc, seconds):
+        times = sorted(self.times)
+        n = len(times)
+        self.allocated += gc.mem_alloc() - self.base
+        self.base = gc.mem_alloc()
+        print("cp.loop.alloc_bytes_per_iteration %d" % (self.allocated // n))
+        print("cp.loop.hz %.1f" % (n / seconds))
+        print("cp.loop.iteration_us.median %d" % times[n // 2])
+        print("cp.loop.iteration_us.p99 %d" % times[(n * 99) // 100])
+        print("cp.loop.iteration_us.max %d" % times[-1])
+        print("cp.gc.collections_per_s %.2f" % (self.collections / seconds))
+        print("cp.gc.collect_us.mean %d" % (self.collect_us // max(1, self.collections)))
+        print("cp.gc.collect_us.max %d" % self.collect_max_us)
+        print("cp.heap.free %d" % gc.mem_free())
+        self.count = self.collections = self.collect_us = self.collect_max_us = self.allocated = 0
+
+
+def run(config_path=CONFIG_FILE, meter_every=0):
+    """The joint: boot, join the bus, loop until Ctrl-C. `meter_every` > 0: print the loop's
+    figures (LoopMeter) every that many iterations, for bench/chip_bench.py."""
+    import gc
+    import supervisor
+
+    core, cfg, log = boot(config_path)
+    link = join_bus(core, cfg, log)
+    console = SerialConsole()
+    log.set_writer(console.write)
+    debug = DebugConsole(core, console.read, console.write)
+    ticks_ms = supervisor.ticks_ms
+    ticks_us = core.clock.ticks_us
+    meter = LoopMeter(meter_every) if meter_every > 0 else None
+    gc.collect()
+    gc.disable()
+    if meter is not None:
+        meter.base = gc.mem_alloc()
+    log.info("CircuitPython joint: %d bytes of heap free" % gc.mem_free())
+    serve = link.poll if link is not None else _nothing
+    turn = 0
+    quiet_since = ticks_ms()
+    started = ticks_us()
+    every = 0  # iterations between collections: set after CALIBRATE iterations
+    since = 0
+    free = gc.mem_free()
+    try:
+        while True:
+            tick = ticks_ms()
+            start = ticks_us() if meter is not None else 0
+            while serve():
+                quiet_since = tick
+            core.service()
+            while serve():
+                quiet_since = tick
+            if core.protocol_request:
+                _refuse_protocol(core, log)
+            turn = (turn + 1) & SLOW_EVERY_MASK
+            if turn == 0:
+                try:
+                    debug.poll()
+                except Exception as exc:  # the console must never end the control loop
+                    log.error("debug console: %r" % (exc,))
+            if meter is not None:
+                meter.add(ticks_us() - start)
+            since += 1
+            if not every:
+                if since == CALIBRATE:
+                    every, per_iteration = _period(free, gc)
+                    log.info("collecting every %d iterations (%d bytes allocated per iteration)"
+                             % (every, per_iteration))
+                    since = every  # collect at the next quiet moment
+            elif since >= every and (since >= 2 * every or ((tick - quiet_since) & TICKS_MASK) >= QUIET_MS):
+                since = 0
+                if meter is None:
+                    gc.collect()
+                else:
+                    meter.collect(gc, ticks_us)
+            if meter is not None and meter.count == meter.every:
+                now = ticks_us()
+                meter.report(gc, (now - started) / 1e6)
+                started = now
+            # The next iteration starts at the next millisecond tick; the bus is served meanwhile.
+            while ticks_ms() == tick:
+                if serve():
+                    quiet_since = tick
+    except KeyboardInterrupt:
+        mp_app.shut_down(core, link, log)
+        raise
+
+
+def _period(free_before, gc):
+    """Iterations between collections, from the allocation of the first CALIBRATE iterations."""
+    per_iteration = (free_before - gc.mem_free()) // CALIBRATE + 1
+    gc.collect()
+    return max(1, gc.mem_free() // (HEAP_SHARE * per_iteration)), per_iteration
+
+
+def _nothing():
+    return False
+
+
+def _refuse_protocol(core, log):
+    """The host asked for another protocol (PROTOCOL register): v2 needs a memory-mode I2C
+    target, which CircuitPython's i2ctarget does not have; the joint keeps the legacy map and
+    the host, finding no v2 state block, stays on legacy."""
+    if core.protocol_request == PROTOCOL_V2:
+        log.warn("protocol v2 needs a memory-mode I2C target, which CircuitPython lacks: "
+                 "serving the legacy map")
+    core.protocol_request = 0

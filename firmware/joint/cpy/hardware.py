@@ -1,0 +1,131 @@
+"""CircuitPython objects behind the interfaces pico.motor.PicoStepper drives: the machine.UART,
+machine.I2C, rp2.StateMachine and machine.Pin calls it makes, on busio, rp2pio and digitalio.
+
+CircuitPython has no rp2.asm_pio: BURST_PROGRAM is pico.stepgen.burst_program assembled by hand
+(RP2040 datasheet 3.4; tests/chip compares it with MicroPython's assembly). Without viper there is
+no direct register access, so the stepper uses these objects' methods (pio and encoder registers
+0): the AS5600 sample is a blocking read, about 80 us of wire time at 1 MHz.
+"""
+
+from array import array
+
+# pico.stepgen.burst_program: side-set 1 pin, optional (2 bits), 3 delay bits; OUT shifts right.
+BURST_PROGRAM = array("H", (
+    0x80A0,  # pull block
+    0xA0C7,  # mov isr, osr
+    0x6001,  # out pins, 1            DIR
+    0x602F,  # out x, 15              pulses - 1
+    0xBA47,  # pulse: mov y, osr  side 1 [2]
+    0x1085,  # low: jmp y--, low  side 0
+    0x0044,  # jmp x--, pulse
+    0x8020,  # push block             the acknowledgement
+))
+
+
+class UartPort:
+    """machine.UART's any/readinto/write on a busio.UART (TMC2209 one-wire: RX sees the echo)."""
+
+    def __init__(self, uart):
+        self._uart = uart
+
+    def any(self):
+        return self._uart.in_waiting
+
+    def readinto(self, buf):
+        return self._uart.readinto(buf)
+
+    def write(self, buf):
+        return self._uart.write(buf)
+
+
+class EncoderBus:
+    """machine.I2C's memory reads and writes on a locked busio.I2C (the AS5600 is alone on it)."""
+
+    def __init__(self, i2c):
+        while not i2c.try_lock():
+            pass
+        self._i2c = i2c
+        self._reg = bytearray(1)
+        self._write = bytearray(3)
+
+    def readfrom_mem_into(self, address, reg, buf):
+        self._reg[0] = reg
+        self._i2c.writeto_then_readfrom(address, self._reg, buf)
+
+    def readfrom_into(self, address, buf):
+        self._i2c.readfrom_into(address, buf)
+
+    def writeto_mem(self, address, reg, buf):
+        out = self._write
+        out[0] = reg
+        for i in range(len(buf)):
+            out[i + 1] = buf[i]
+        self._i2c.writeto(address, out, end=len(buf) + 1)
+
+
+class StepMachine:
+    """rp2.StateMachine's put/get/rx_fifo on an rp2pio.StateMachine, one 32-bit word at a time."""
+
+    def __init__(self, sm):
+        self._sm = sm
+        self._word = array("L", (0,))
+
+    def put(self, word):
+        self._word[0] = word
+        self._sm.write(self._word)
+
+    def get(self):
+        self._sm.readinto(self._word)
+        return self._word[0]
+
+    def rx_fifo(self):
+        return self._sm.in_waiting
+
+
+class EnablePin:
+    """machine.Pin's value(v) on a digitalio output."""
+
+    def __init__(self, pin):
+        self._pin = pin
+
+    def value(self, level):
+        self._pin.value = bool(level)
+
+
+def gpio(number):
+    import board
+    return getattr(board, "GP%d" % number)
+
+
+def build_stepper(cls, motor_cfg, clock):
+    """pico.motor_config.build_stepper's objects, from CircuitPython's modules."""
+    import busio
+    import digitalio
+    import rp2pio
+
+    from ..pico import tmc2209 as tmc
+    from ..pico.as5600 import AS5600
+    from ..pico.motor_config import DEFAULTS, validate_motor_config
+    from ..pico.stepgen import SM_FREQ, StepGenerator
+
+    problems = validate_motor_config(motor_cfg)
+    if problems:
+        raise ValueError("; ".join(problems))
+    c = dict(DEFAULTS)
+    c.update(motor_cfg)
+    char_ms = 1 + 10000 // c["uart_baud"]
+    uart = busio.UART(gpio(c["uart_tx"]), gpio(c["uart_rx"]), baudrate=c["uart_baud"],
+                      timeout=(2 + 3 * char_ms) / 1000, receiver_buffer_size=64)
+    i2c = busio.I2C(gpio(c["encoder_scl"]), gpio(c["encoder_sda"]), frequency=c["encoder_freq"])
+    enable = digitalio.DigitalInOut(gpio(c["enable"]))
+    enable.switch_to_output(value=True)  # ENN high: bridges off until begin()
+    sm = rp2pio.StateMachine(BURST_PROGRAM, frequency=SM_FREQ, first_out_pin=gpio(c["dir"]),
+                             initial_out_pin_state=0, initial_out_pin_direction=1,
+                             first_sideset_pin=gpio(c["step"]), initial_sideset_pin_state=0,
+                             initial_sideset_pin_direction=1, sideset_enable=True,
+                             out_shift_right=True, wait_for_txstall=False)
+    return cls(tmc.TMC2209(UartPort(uart), c["tmc_address"]), AS5600(EncoderBus(i2c)),
+               StepGenerator(StepMachine(sm), c["microsteps"], c["max_step_rate"], SM_FREQ),
+               EnablePin(enable), clock,
+               c["update_hz"], c["rsense_ohm"], c["full_scale_ma"],
+               c["encoder_slow_filter"], c["encoder_fast_threshold"])
