@@ -278,6 +278,8 @@ def test_at_rest_the_joints_follow_the_wall_clock_and_input_finds_them_caught_up
         assert wait_until(lambda: probe.first is not None)
         assert probe.first is not None
         start_us = probe.first[0]
+        # The wall clock moves only while the server waits for input, as it would at rest.
+        assert wait_until(lambda: probe.waits_at >= start_us)
         for _ in range(3):  # steps shorter than a long wait at rest: no input, so nothing wakes the server
             wall.now += 0.2
             target = start_us + round(wall.now * 1e6)
