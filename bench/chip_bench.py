@@ -20,7 +20,7 @@ from typing import Any, Callable
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT)]
 
-from bioscara import flash  # noqa: E402
+from bioscara import firmware_flash  # noqa: E402
 from bioscara.firmware.console.debug_commands import TRACE_COLUMNS  # noqa: E402
 from chip import fsimage  # noqa: E402
 from chip.board import EmulatedPico  # noqa: E402
@@ -39,7 +39,7 @@ BEFORE_LOOP: list[Callable[[EmulatedPico], None]] = [host_cycle]  # the host cyc
 
 def bench_image(directory: pathlib.Path) -> pathlib.Path:
     """The deployed joint's filesystem plus /chip_loop.mpy (the instrumentation, not firmware)."""
-    compile_mpy, _ = flash._compiler(fsimage.STOCK_PICO)
+    compile_mpy, _ = firmware_flash._compiler(fsimage.STOCK_PICO)
     files = dict(fsimage.joint_files(JOINT))
     source = (ROOT / "bench" / "chip_loop.py").read_bytes()
     files["/chip_loop.mpy"] = compile_mpy(source, "chip_loop.py") if compile_mpy else source

@@ -1,11 +1,18 @@
 """Joint-bus figures for `make bench-chip`: the deployed joint's I2C0 target under the emulated
 controller (chip/src/joint_bus.mjs), every figure in emulated microseconds.
 
-* `chip.scl_held_us.<REGISTER>` / `chip.irq_cpu_us.<REGISTER>`: one transaction as the original
-  host makes it (a read: [reg], repeated START, payload + flags; a command: [reg, payload], repeated
-  START, the flags), at 400 kHz, the median of REPEATS transactions a few ms apart. SCL held is the
-  time the target kept SCL low; IRQ CPU is the joint core's time in its I2C0 interrupt handler from
-  the START until the handler is idle after the STOP (nested interrupts excluded).
+* Every register of the map, as a host uses it, at 400 kHz: REPEATS isolated transactions each, a
+  few ms apart and sweeping the phase of the joint's 1 ms main loop. `chip.scl_held_us.<NAME>` /
+  `chip.irq_cpu_us.<NAME>` the median, `chip.scl_held_us_max.<NAME>` / `chip.irq_cpu_us_max.<NAME>`
+  the largest. NAME is a register (a read: [reg], repeated START, payload + flags; a command:
+  [reg, payload], repeated START, the flags; a register declared but not implemented: [reg] and
+  its flags, rejected), `read.<REGISTER>` the read of a register that is also a command, or
+  `reject.<reason>` a frame the joint rejects (see REJECTED). SCL held is the time the target kept
+  SCL low; IRQ CPU is the joint core's time in its I2C0 interrupt handler from the START until
+  the handler is idle after the STOP (nested interrupts excluded). Every case checks the reply's
+  ERROR flag: a case that does not take the path it names fails the run.
+* `chip.worst.<figure>`: the largest of each figure over all of them, `chip.over_limit.<figure>`
+  how many exceed LIMITS_US (SCL held 120 us, IRQ CPU 150 us); the worst cases are named on stderr.
 * `chip.cycle_us.<kHz>`: the original host's per-joint cycle, ANGLEMOVED read, GETENCODERRPM read,
   SETRPM command, back to back, START of the first to STOP of the last, stretching included;
   the median over CYCLES cycles at 100 Hz; `chip.cycle_failures.<kHz>` counts the cycles with a
@@ -20,15 +27,18 @@ controller (chip/src/joint_bus.mjs), every figure in emulated microseconds.
   either way, so the bus timing is that of any v2 frame.
 
 The joint is enabled first (SETUP, sent at 100 kHz: at 400 kHz the rp2 driver splits 5-byte
-commands, see chip/README.md) when the device fakes are on its pins; without them it is disabled
-and answers with its flags. `transaction_figures` is the generic per-transaction API (v2 frames too).
+commands, see chip/README.md); that needs the device fakes on its pins (without them it is
+disabled, and the register figures refuse to run). `transaction_figures` is the generic
+per-transaction API (v2 frames too).
 """
 
 from __future__ import annotations
 
 import statistics
+import struct
 import sys
 from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 ROOT = __import__("pathlib").Path(__file__).resolve().parents[1]
@@ -40,11 +50,14 @@ from chip.board import EmulatedPico  # noqa: E402
 from chip.i2c import JointBusClient, Transaction, joint_bus_plugin  # noqa: E402
 
 ADDRESS = 0x11  # J1
-REGISTERS = ("PING", "ANGLEMOVED", "GETENCODERRPM", "SETRPM", "MOVETOANGLE", "IDENTITY")
 SPEEDS_KHZ = (100, 400, 1000)
-REPEATS = 7
+REPEATS = 9
 CYCLES = 10
 GAP_US = 3000.0
+# Each repeat starts this much later in the joint's 1 ms main loop than the one before: the
+# repeats sweep the loop's phases (a transaction meeting the loop's critical sections, or an
+# iteration that applies a command, is among them).
+PHASE_STEP_US = 111.0
 CYCLE_PERIOD_US = 10_000.0  # host cycling at 100 Hz
 # The background host's clock runs 300 ppm off the joint's, as two boards' clocks do (if less):
 # at exactly 10 ms the cycle would meet the joint's 1 ms loop at one phase for the whole run, set
@@ -52,7 +65,32 @@ CYCLE_PERIOD_US = 10_000.0  # host cycling at 100 Hz
 # sweeps every phase of the loop every 3.3 s.
 HOST_CLOCK_PPM = 300
 CYCLE_NAMES = ("ANGLEMOVED", "GETENCODERRPM", "SETRPM")  # the original host's per-joint cycle
-COMMAND_VALUES = {"SETRPM": (10.0,), "MOVETOANGLE": (1.0,), "SETUP": (30, 10, 0, 0)}
+# Every command's payload in the bench: accepted by the enabled joint at rest.
+COMMAND_VALUES: dict[str, tuple[Any, ...]] = {
+    "SETUP": (30, 10, 0, 0), "SETRPM": (10.0,), "MOVESTEPS": (256,), "MOVEANGLE": (1.0,),
+    "MOVETOANGLE": (1.0,), "SETCURRENT": (30,), "SETHOLDCURRENT": (10,),
+    "SETMAXACCELERATION": (2000.0,), "SETMAXDECELERATION": (2000.0,), "SETMAXVELOCITY": (1000.0,),
+    "ENABLESTALLGUARD": (10,), "DISABLESTALLGUARD": (0,), "CLEARSTALL": (0,), "SETBRAKEMODE": (1,),
+    "ENABLECLOSEDLOOP": (0,), "DISABLECLOSEDLOOP": (0,), "STOP": (0,), "CHECKORIENTATION": (10.0,),
+    "HOME": (1, 30, 200, 30), "HOMEOFFSET": (0.0,), "PROTOCOL": (1,), "WATCHDOG": (0,),
+}
+# A blocking command is accepted only once the one before it was stopped.
+BEFORE_EACH = {"HOME": ("STOP",), "CHECKORIENTATION": ("STOP",)}
+LIMITS_US = {"scl_held_us": 120.0, "irq_cpu_us": 150.0}  # what every legacy transaction stays within
+
+
+@dataclass(frozen=True)
+class Case:
+    """One kind of transaction measured: `write` + repeated START + `read_len` bytes; `before` is
+    sent (unmeasured) before each repeat, `setup` once before the first; `rejected`: the reply
+    must carry ERROR (else it must not)."""
+
+    name: str
+    write: bytes
+    read_len: int
+    rejected: bool = False
+    before: tuple[tuple[bytes, int], ...] = ()
+    setup: tuple[tuple[bytes, int], ...] = ()
 
 
 def legacy_transaction(name: str) -> tuple[bytes, int]:
@@ -61,6 +99,52 @@ def legacy_transaction(name: str) -> tuple[bytes, int]:
     if reg.writable:
         return bytes([reg.addr]) + reg.encode(*COMMAND_VALUES[name]), 1
     return bytes([reg.addr]), reg.rsize + 1
+
+
+def _command(name: str, *values: Any) -> bytes:
+    reg = P.register(name)
+    return bytes([reg.addr]) + reg.encode(*values)
+
+
+def _nan_rpm() -> bytes:
+    return bytes([P.SETRPM]) + struct.pack("<f", float("nan"))
+
+
+# Frames the joint rejects, one per way of being rejected that a host can provoke on an enabled
+# joint (a full queue needs 16 commands within one loop iteration; a disabled joint, a bad
+# configuration): name, write, read_len, setup (sent once before).
+REJECTED: tuple[Case, ...] = (
+    Case("reject.unknown_register", bytes([0x3F]), 1, True),
+    Case("reject.outside_map", bytes([0xFF]), 1, True),
+    # Short: kept open until the read (a STOP serviced late splits commands: the adapter's note);
+    # [SETRPM] alone, a read of a command register, takes the same path.
+    Case("reject.length", bytes([P.SETRPM, 0, 0]), 1, True),
+    Case("reject.value", _command("SETCURRENT", 0)[:1] + bytes([101]), 1, True),
+    Case("reject.not_finite", _nan_rpm(), 1, True),
+    Case("reject.homing_sensitivity", _command("HOME", 1, 30, 0, 30), 1, True),
+    # A HOME holds BUSY for at least its settling time (500 ms) whatever the motor does.
+    Case("reject.busy", _command("CHECKORIENTATION", 10.0), 1, True,
+         before=((_command("STOP", 0), 1), (_command("HOME", *COMMAND_VALUES["HOME"]), 1))),
+    Case("reject.not_enabled", _command("SETRPM", 10.0), 1, True,
+         setup=((_command("DISABLECLOSEDLOOP", 0), 1),)),
+)
+
+
+def register_cases() -> list[Case]:
+    """Every register of the protocol map as a host uses it, then the reads of registers that are
+    commands too, then REJECTED."""
+    cases = []
+    reads = []
+    for reg in P.REGISTERS:
+        if not reg.supported:
+            cases.append(Case(reg.name, bytes([reg.addr]), 1, True))
+            continue
+        write, read_len = legacy_transaction(reg.name)
+        before = tuple(legacy_transaction(name) for name in BEFORE_EACH.get(reg.name, ()))
+        cases.append(Case(reg.name, write, read_len, before=before))
+        if reg.writable and reg.rsize:
+            reads.append(Case("read." + reg.name, bytes([reg.addr]), reg.rsize + 1))
+    return cases + reads + list(REJECTED)
 
 
 def wait_on_bus(bus: JointBusClient, address: int = ADDRESS, limit: int = 500) -> None:
@@ -72,12 +156,77 @@ def wait_on_bus(bus: JointBusClient, address: int = ADDRESS, limit: int = 500) -
 
 
 def transaction_figures(bus: JointBusClient, write: bytes, read_len: int, *, repeats: int = REPEATS,
-                        address: int = ADDRESS) -> tuple[float, float, list[Transaction]]:
-    """Median SCL held and IRQ CPU time (us) of one transaction repeated `repeats` times, isolated."""
-    done = [bus.transfer(address, write, read_len, gap_us=GAP_US) for _ in range(repeats)]
+                        address: int = ADDRESS, before: Sequence[tuple[bytes, int]] = ()
+                        ) -> tuple[float, float, list[Transaction]]:
+    """Median SCL held and IRQ CPU time (us) of one transaction repeated `repeats` times, isolated,
+    each PHASE_STEP_US later in the joint's main loop than the one before; `before` is sent
+    (unmeasured) ahead of each."""
+    done = []
+    for i in range(repeats):
+        for frame, length in before:
+            bus.transfer(address, frame, length, gap_us=GAP_US)
+        done.append(bus.transfer(address, write, read_len, gap_us=GAP_US + i * PHASE_STEP_US))
     held = statistics.median(t.scl_held_us for t in done)
     irq = statistics.median(t.irq_cpu_us or 0.0 for t in done)
     return held, irq, done
+
+
+def wait_until_idle(bus: JointBusClient, address: int = ADDRESS, limit: int = 2000) -> None:
+    """Poll PING until the joint's flags show no blocking task (the boot's orientation check)."""
+    for _ in range(limit):
+        t = bus.transfer(address, bytes([P.PING]), 2, gap_us=5000)
+        if t.ack and not t.data[1] & P.FLAG_BUSY:
+            return
+    raise RuntimeError(f"the joint at 0x{address:02x} stayed BUSY")
+
+
+def measure_case(bus: JointBusClient, case: Case) -> dict[str, float]:
+    """The four figures of one case; RuntimeError if a reply's ERROR flag says it took another path."""
+    for frame, length in case.setup:
+        bus.transfer(ADDRESS, frame, length, gap_us=GAP_US)
+    _, _, done = transaction_figures(bus, case.write, case.read_len, before=case.before)
+    for t in done:
+        flags = t.data[0 if case.rejected else case.read_len - 1] if t.ack else None
+        if flags is None or bool(flags & P.FLAG_ERROR) != case.rejected:
+            last = bus.transfer(ADDRESS, bytes([P.LASTERROR]), 5, gap_us=GAP_US).data
+            raise RuntimeError(f"{case.name}: {t.write.hex()} answered {t.data.hex()} (ack {t.ack}), "
+                               f"expected {'a rejection' if case.rejected else 'no ERROR'}; the last "
+                               f"rejection: {P.reject_string(last[0])}, register 0x{last[1]:02x}")
+    held = [t.scl_held_us for t in done]
+    irq = [t.irq_cpu_us or 0.0 for t in done]
+    return {"scl_held_us": statistics.median(held), "scl_held_us_max": max(held),
+            "irq_cpu_us": statistics.median(irq), "irq_cpu_us_max": max(irq)}
+
+
+def register_figures(bus: JointBusClient, cases: Sequence[Case] | None = None) -> dict[str, float]:
+    """Every case of `cases` (register_cases()) on the enabled joint, each from the joint at rest
+    and enabled (STOP, SETUP), then the worst of each figure (`chip.worst.*`, the cases named on
+    stderr) and how many cases exceed LIMITS_US (`chip.over_limit.*`)."""
+    wait_until_idle(bus)
+    if not enable(bus):
+        raise RuntimeError("the joint did not enable (are the device fakes on its pins?)")
+    restore = [legacy_transaction("STOP"), legacy_transaction("SETUP")]
+    figures: dict[str, float] = {}
+    worst: dict[str, tuple[float, str]] = {}
+    over: dict[str, int] = {}
+    for case in cases if cases is not None else register_cases():
+        for frame, length in restore:
+            bus.transfer(ADDRESS, frame, length, gap_us=GAP_US)
+        for figure, value in measure_case(bus, case).items():
+            figures[f"chip.{figure}.{case.name}"] = round(value, 1)
+            if value > worst.get(figure, (-1.0, ""))[0]:
+                worst[figure] = (value, case.name)
+            limit = LIMITS_US.get(figure.removesuffix("_max"))
+            if figure.endswith("_max") and limit is not None:
+                over[figure] = over.get(figure, 0) + (value > limit)
+    for frame, length in restore:
+        bus.transfer(ADDRESS, frame, length, gap_us=GAP_US)
+    for figure, (value, name) in worst.items():
+        figures[f"chip.worst.{figure}"] = round(value, 1)
+        print(f"worst {figure}: {value:.1f} us, {name}", file=sys.stderr)
+    for figure, count in over.items():
+        figures[f"chip.over_limit.{figure}"] = count
+    return figures
 
 
 def cycle_figure(bus: JointBusClient, items: Sequence[tuple[bytes, int]], *, cycles: int = CYCLES,
@@ -160,11 +309,7 @@ def bus_figures(image: Any, plugins: Iterable[dict[str, Any]] = ()) -> dict[str,
     with EmulatedPico(image, plugins=[*plugins, joint_bus_plugin(khz=400)]) as pico:
         bus = JointBusClient(pico)
         wait_on_bus(bus)
-        enable(bus)
-        for name in REGISTERS:
-            held, irq, _ = transaction_figures(bus, *legacy_transaction(name))
-            figures[f"chip.scl_held_us.{name}"] = round(held, 1)
-            figures[f"chip.irq_cpu_us.{name}"] = round(irq, 1)
+        figures.update(register_figures(bus))
         cycle = [legacy_transaction(n) for n in CYCLE_NAMES]
         for khz in SPEEDS_KHZ:
             bus.set_khz(khz)

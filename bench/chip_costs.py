@@ -42,10 +42,15 @@ def refresh(table: dict, figures: dict[str, float], source: str) -> dict:
     mem = held.pop("v2", None)
     if mem is not None:
         table["scl_held_us_mem"] = mem  # the v2 memory map, served in C
+    # By register (a register's figure is the transaction its host makes: a command if writable);
+    # the defaults from the implemented ones. The reads of command registers (read.<NAME>) and
+    # the rejected frames (reject.<reason>) are not the simulator's.
+    held = {name: value for name, value in held.items() if name in P.BY_NAME}
     if held:
         table["scl_held_us"] = held
-        commands = [v for name, v in held.items() if P.register(name).writable]
-        reads = [v for name, v in held.items() if not P.register(name).writable]
+        implemented = [name for name in held if P.register(name).supported]
+        commands = [held[name] for name in implemented if P.register(name).writable]
+        reads = [held[name] for name in implemented if not P.register(name).writable]
         table["scl_held_us_default"] = {"read": max(reads or held.values()),
                                         "command": max(commands or held.values())}
     if "chip.loop_hz" in figures:

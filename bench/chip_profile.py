@@ -165,6 +165,7 @@ MODULES = ["joint.micro", "joint.motion.fixed", "joint.spec.protocol_v2", "joint
 PARTS = '''
 import gc, time, machine
 from joint import app
+from joint.core import irq
 from joint.spec import protocol as P
 from joint.console.debug import DebugConsole, UsbStdio
 from joint.motion.fixed import store_q
@@ -195,7 +196,7 @@ for i in range(N):
     time.sleep_ms(1)
     now = core.clock.ticks_ms()
     t0 = t(); hal.update(); t1 = t()
-    while core._q_out != core._q_in:
+    while core._ftab[irq.FTAB_Q_OUT] != core._ftab[irq.FTAB_Q_IN]:
         core._apply_next()
     if core.positioning and hal.position_reached():
         core.positioning = False
@@ -224,6 +225,7 @@ print("driver_rpm", hal.driver_rpm(), "flags", core.flags)
 ALLOC = '''
 import gc, time
 from joint import app
+from joint.core import irq
 from joint.core import controller as core
 from joint.console import debug
 from joint.spec import protocol as P
@@ -239,13 +241,13 @@ def svc(self):
             self.on_frame(_SETUP, 5)
             st[0] = 1
         return _service(self)
-    q0 = self._q_out
+    q0 = self._ftab[irq.FTAB_Q_OUT]
     tr = self.transactions
     a0 = gc.mem_alloc()
     _service(self)
     a1 = gc.mem_alloc()
     if a1 != a0:
-        log.append((a1 - a0, self._q_out - q0, self.transactions - tr, self._cache_turn, self.task_name))
+        log.append((a1 - a0, self._ftab[irq.FTAB_Q_OUT] - q0, self.transactions - tr, self._cache_turn, self.task_name))
     st[1] += 1
     if st[1] >= 600:
         raise Done()
@@ -267,10 +269,10 @@ def main() -> int:
         return 0
     ms = int(sys.argv[1]) if len(sys.argv) > 1 else 3000
     mode = sys.argv[2] if len(sys.argv) > 2 else "both"
-    from bioscara import flash
+    from bioscara import firmware_flash
     from chip import fsimage
     with tempfile.TemporaryDirectory() as directory:
-        compile_mpy, _ = flash._compiler(fsimage.STOCK_PICO)
+        compile_mpy, _ = firmware_flash._compiler(fsimage.STOCK_PICO)
         files = dict(fsimage.joint_files(chip_bench.JOINT))
         files["/prof.py"] = PROFILER.format(n=len(TARGETS) + 1).encode()
         image = pathlib.Path(directory) / "prof.img"

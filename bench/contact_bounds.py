@@ -32,7 +32,7 @@ sys.path[:0] = [os.path.join(HERE, "..", "firmware")]
 
 from joint.sim import mechanics as M  # noqa: E402
 
-CURRENT = {"J1": 20, "J2": 40, "J3": 20, "J4": 20}  # shipped drive current, % (default.toml)
+CURRENT = {"J1": 20, "J2": 8, "J3": 20, "J4": 20}  # shipped drive current, % (default.toml)
 ISO_ABDOMEN_N = M.ISO_ABDOMEN_N
 USTEPS_PER_RAD_E = 1024 / (2 * math.pi)  # load angle: usteps per electrical radian
 LATENCY_S = 0.25

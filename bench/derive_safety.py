@@ -4,13 +4,14 @@ simulated arm's mechanics (firmware/joint/sim/mechanics.py), so they come from a
 Stall detector (tracking.py: stalled when lag > base + min(|field speed| * tau, cap), the lag taken
 net of `slope` per ustep of travel): run the real firmware through unobstructed motion at the
 joint's configured acceleration and record every sample the firmware's detector is fed (field and
-encoder usteps). The motion set: velocity steps to 10 rpm .. top speed and back through reversals,
-short position moves at top speed, a streamed trajectory (a new velocity every 20 ms), and the
-benchmark's own free motion (bench/safety.py: its long position moves, e.g. 9000 motor degrees and
-back on J2, and its streamed sine with the full-speed reversal at its end, polled as it polls). It
-runs with nominal and harsh TLE5012B noise and the Pico backend's AS5600, without and with the
-joint's payload corner, on SEEDS (the benchmark runs seed 1, so it checks the constants on noise they
-were not derived from), and on every cost table of TABLES: the measured one
+encoder usteps). The motion set is held out from the benchmark's (bench/safety.py; `overlap`
+lists what both run, and must be empty): velocity steps to 13 rpm .. 98 % of the top speed and back
+through reversals, short position moves at top speed, long moves to other fractions of the bench's
+travel (polled as a host polls them), two streamed sines of other amplitudes and frequencies than
+the bench's (a new velocity every 20 ms) and full-speed reversals at 98 % of the top. It runs with
+nominal and harsh TLE5012B noise and the Pico backend's AS5600, with 5 % and 120 % of the bench's
+payload corner (the bench runs 0 and 100 %), on SEEDS (the bench: 1 and 11..15), and on every cost
+table of TABLES: the measured one
 (firmware/joint/sim/chip_costs.json) and variants with the chip's clock stretching x0.3 and x1.5
 and with loop-period jitter (each main-loop iteration up to 500 us late) -- the bus timing moves
 the instants at which the detector samples, and the constants must not depend on it.
@@ -43,7 +44,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path[:0] = [os.path.join(HERE, "..", "firmware"), os.path.join(HERE, "..", "firmware", "tests")]
 
 import numpy as np  # noqa: E402
-import safety as bench  # noqa: E402 -- the benchmark's free motion, to derive on it too
+import safety as bench  # noqa: E402 -- the benchmark's matrix, to stay out of it
 from harness import SimRig  # noqa: E402
 from joint.motion.fixed import STEPS_Q, to_q  # noqa: E402
 from joint.sim import mechanics  # noqa: E402
@@ -53,15 +54,20 @@ from joint.detect.tracking import TrackingDetector  # noqa: E402
 # The arm's configured motion (host/bioscara/data/default.toml) on the motor side.
 JOINTS = {  # top speed rpm, acceleration motor deg/s^2, drive current %, stall sensitivity
     "J1": (334.0, 4011.0, 20, 6),
-    "J2": (450.0, 18000.0, 40, 12),
+    "J2": (450.0, 18000.0, 8, 12),
     "J3": (1146.0, 19251.0, 20, 6),
     "J4": (1146.0, 20626.0, 20, 6),
 }
-# The payload corner of each joint (kg; J2: enough to back-drive the screw), as bench/safety.py.
-PAYLOAD = {"J1": 0.2, "J2": 1.0, "J3": 0.2, "J4": 0.2}
-# Simulator seeds of the derivation; bench/safety.py runs seed 1, so it checks the constants on
-# noise they were not derived from.
-SEEDS = (2, 3, 4)
+# Held out (issue 20): the derivation's motion, payloads and seeds are none of those bench/safety.py
+# runs (bench.motion_set; main() refuses to derive if they meet, tests/test_derive_held_out.py
+# checks), so the bench judges the constants on motion they were not fitted to.
+STEP_SPEEDS = (13.0, 40.0, 90.0, 200.0)  # rpm; the bench's are 10, 30, 60, 120, 250 and its top
+TOP_FRACTION = 0.98  # the fastest step: the bench runs floor(top) and top
+SHORT_MOVE_S = 0.5  # short moves of this many seconds at top speed, out and back
+LONG_MOVE_FRACTIONS = (0.7, -0.45, 0.25, 0.0)  # of the bench's long move (its: 1, -1, 0.1, 0)
+STREAMS = ((0.5, 1.0 / 1.5), (0.8, 0.45))  # (amplitude x top speed, Hz); the bench's: (0.6, 0.7)
+PAYLOAD_FRACTIONS = (0.05, 1.2)  # of the bench's payload corner (it runs 0 and 1x)
+SEEDS = (2, 3, 4)  # the bench: 1, its contacts 11..15
 MEASURED = ChipCosts.load()
 TABLES = {  # name: the chip's costs (clock stretching per transaction, main-loop period)
     "measured": MEASURED,
@@ -139,17 +145,50 @@ def _record(rig, seconds, out, losses, phase="", poll_ms=SAMPLE_MS):
         out.append((first, len(core.track.fed)))
 
 
+def step_speeds(joint):
+    """The velocity steps of the derivation (rpm): STEP_SPEEDS below TOP_FRACTION of the top speed,
+    then that fraction."""
+    top = JOINTS[joint][0] * TOP_FRACTION
+    return [rpm for rpm in STEP_SPEEDS if rpm < top] + [top]
+
+
+def payloads(joint):
+    return tuple(round(f * bench.PAYLOAD[joint], 3) for f in PAYLOAD_FRACTIONS)
+
+
+def _move_targets(joint):
+    """Motor degrees: the short moves at top speed, then the long ones (fractions of the bench's
+    span), each from the previous target."""
+    short = JOINTS[joint][0] * 6.0 * SHORT_MOVE_S
+    span = bench.move_span_deg(joint)
+    return [short, -short, 0.0] + [span * f for f in LONG_MOVE_FRACTIONS]
+
+
+def motion_set(joint):
+    """What the derivation runs on `joint`, in bench.motion_set's terms (the first move starts
+    where the velocity steps left the rotor: from None)."""
+    targets = [None] + [round(t, 1) for t in _move_targets(joint)]
+    return {"speeds": {round(v, 1) for v in step_speeds(joint)},
+            "moves": set(zip(targets, targets[1:])), "streams": set(STREAMS),
+            "payloads": set(payloads(joint)), "seeds": set(SEEDS)}
+
+
+def overlap(joint):
+    """Whatever the derivation and the bench both run on `joint` ({} when held out)."""
+    mine, theirs = motion_set(joint), bench.motion_set(joint)
+    return {key: mine[key] & theirs[key] for key in mine if mine[key] & theirs[key]}
+
+
 def free_motion(args):
     """args (joint, noise, seed, payload_kg, table) -> (what the detector was fed, the (first, end)
     sample ranges of the free phases, the phases in which the motor lost position) through the
-    unobstructed motion set."""
+    unobstructed motion set (held out from the bench's: motion_set)."""
     joint, noise, seed, payload_kg, table = args
-    top, accel, _, _ = JOINTS[joint]
+    accel = JOINTS[joint][1]
     phases = []
     losses = []
     rig = _rig(joint, noise, seed, payload_kg, table)
-    for rpm in (10.0, 30.0, 100.0, 300.0, top):
-        rpm = min(rpm, top)
+    for rpm in step_speeds(joint):
         ramp = 2.0 * rpm * 6.0 / accel + 0.3
         rig.command("SETRPM", rpm)
         _record(rig, ramp, phases, losses, "to %g rpm" % rpm)
@@ -157,25 +196,22 @@ def free_motion(args):
         _record(rig, ramp, phases, losses, "reversal at %g rpm" % rpm)
         rig.command("SETRPM", 0.0)
         _record(rig, ramp / 2.0, phases, losses, "stop from %g rpm" % rpm)
-    short = top * 6.0 * 0.5
-    for target in (short, -short, 0.0):
-        rig.command("MOVETOANGLE", target)
-        _record(rig, 1.5 + 2.0 * top * 6.0 / accel, phases, losses, "move to %g deg" % target)
-    for k in range(150):  # a streamed trajectory: a new velocity every 20 ms
-        rig.command("SETRPM", 0.5 * top * math.sin(2.0 * math.pi * k / 75.0))
-        _record(rig, 0.02, phases, losses, "streamed trajectory")
-    rig.command("SETRPM", 0.0)
-    _record(rig, 0.5, phases, losses, "stop")
-    # The benchmark's free motion (bench/safety.py free_move), with its polling.
+    top = step_speeds(joint)[-1]
     c = bench.CONFIG[joint]
-    span = math.degrees(bench.TRAVEL[joint] * c["n"])
-    t_move = span / math.degrees(c["vel"] * c["n"]) + 2 * c["vel"] / c["acc"] + 0.5
-    for target in (span, -span, span * 0.1, 0.0):
+    t_short = 1.5 + 2.0 * JOINTS[joint][0] * 6.0 / accel
+    t_long = bench.move_span_deg(joint) / math.degrees(c["vel"] * c["n"]) + 2 * c["vel"] / c["acc"] + 0.5
+    for i, target in enumerate(_move_targets(joint)):  # the long ones polled as a host polls them
         rig.command("MOVETOANGLE", target)
-        _record(rig, t_move, phases, losses, "long move to %g deg" % target, poll_ms=20)
-    for i in range(150):
-        rig.command("SETRPM", 0.6 * top * math.sin(2 * math.pi * 0.7 * i * 0.02))
-        _record(rig, 0.02, phases, losses, "streamed sine", poll_ms=None)
+        if i < 3:
+            _record(rig, t_short, phases, losses, "move to %g deg" % target)
+        else:
+            _record(rig, t_long, phases, losses, "long move to %g deg" % target, poll_ms=20)
+    for amplitude, hz in STREAMS:  # streamed trajectories: a new velocity every 20 ms
+        for k in range(150):
+            rig.command("SETRPM", amplitude * top * math.sin(2.0 * math.pi * hz * k * 0.02))
+            _record(rig, 0.02, phases, losses, "streamed sine %g x top, %g Hz" % (amplitude, hz), poll_ms=None)
+        rig.command("SETRPM", 0.0)
+        _record(rig, 0.5, phases, losses, "stop")
     for rpm in (top, -top, 0.0):
         rig.command("SETRPM", rpm)
         _record(rig, 2.0 * top * 6.0 / accel + 0.3, phases, losses, "step to %g rpm" % rpm, poll_ms=20)
@@ -249,7 +285,7 @@ def fit(runs):
 
 def keeps_position(joint, decel):
     top, _, _, _ = JOINTS[joint]
-    rig = _rig(joint, "nominal", 1)
+    rig = _rig(joint, "nominal", SEEDS[0])
     rig.joint.core.stop_deceleration = to_q(decel, STEPS_Q)  # the core's unit: full steps/s^2 Q4
     rig.command("WATCHDOG", 20)
     rig.command("SETRPM", top)
@@ -269,7 +305,7 @@ def stop_deceleration(joint):
 def cases(joint):
     """Every (joint, noise, seed, payload_kg, table) the derivation runs."""
     return [(joint, noise, seed, payload, table) for noise in ("nominal", "harsh", "as5600") for seed in SEEDS
-            for payload in (0.0, PAYLOAD[joint]) for table in TABLES]
+            for payload in payloads(joint) for table in TABLES]
 
 
 def largest_lag(runs, slope, confirm):
@@ -281,6 +317,9 @@ def main(argv):
     results = {}
     losses = {}
     processes = 1 if "-j1" in argv else min(2, os.cpu_count() or 1)
+    for joint in JOINTS:
+        if overlap(joint):
+            sys.exit("%s: the derivation runs what the bench runs: %s" % (joint, overlap(joint)))
     for joint in JOINTS:
         todo = cases(joint)
         if processes > 1:

@@ -12,7 +12,7 @@ from dataclasses import replace
 from bioscara import motion
 from bioscara.bus.sim import SimBus
 from bioscara.communicator import Communicator
-from bioscara.config import load_config
+from bioscara.config import read_config
 from bioscara.hardware import open_arm, open_arm_bus
 
 
@@ -40,7 +40,7 @@ class SimMeter:
 
 
 def homed_arm(realtime: bool = False, protocol: str = "auto"):  # type: ignore[no-untyped-def]
-    config = load_config()
+    config = read_config()
     config = replace(config, bus=replace(config.bus, url="sim:realtime" if realtime else "sim:virtual"))
     bus = open_arm_bus(config)
     arm = open_arm(config, bus, protocol)
@@ -99,12 +99,12 @@ def communicator_realtime(rate: float, seconds: float = 3.0) -> dict[str, float]
 
 def bridge_throughput(transactions: int = 2000) -> dict[str, float]:
     """PING transactions per second through the HIL bridge framing on the simulator's pty."""
-    from bioscara.bus import open_bus
+    from bioscara.transports import open_bus
     from bioscara.firmware.spec import protocol as P
     from bioscara.hardware import sim_joint_specs
     from bioscara.sim_server import SimServer
 
-    with SimServer(sim_joint_specs(load_config())) as server:
+    with SimServer(sim_joint_specs(read_config())) as server:
         bus = open_bus(f"serial:{server.bridge_path}")
         t0 = time.perf_counter()
         for _ in range(transactions):

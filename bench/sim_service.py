@@ -13,7 +13,7 @@ import time
 from pathlib import Path
 
 from bioscara import sim_service
-from bioscara.config import load_config
+from bioscara.config import read_config
 from bioscara.hardware import sim_joint_specs
 
 WINDOW_S = 10.0
@@ -34,7 +34,7 @@ def _share(pid: int) -> float:
 
 
 def main() -> None:
-    specs = sim_joint_specs(load_config())
+    specs = sim_joint_specs(read_config())
     with tempfile.TemporaryDirectory(prefix="bioscara-bench-") as home:
         state_dir = Path(home) / "bioscara"
         sim_service.start(state_dir, specs, idle_exit_s=None)

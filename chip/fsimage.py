@@ -1,7 +1,7 @@
 """Littlefs images of the emulated Pico's filesystem, made from exactly the files `bioscara flash` deploys.
 
 `joint_image("J1")` is what `bioscara flash <port> --joint J1` leaves on a stock MicroPython v1.28.0
-Pico (the same `bioscara.flash.build_image`, for the board that probe reports), so a test can boot a
+Pico (the same `bioscara.firmware_flash.build_image`, for the board that probe reports), so a test can boot a
 deployed joint without the ~30 s flash step.
 """
 
@@ -11,7 +11,7 @@ from pathlib import Path
 
 from littlefs import LittleFS
 
-from bioscara import flash
+from bioscara import firmware_flash
 from bioscara.mpboard import BoardInfo
 
 # MicroPython v1.28.0 RPI_PICO (ports/rp2 _boot.py and its flash layout): littlefs v2 at flash
@@ -55,7 +55,7 @@ def read_image(image: bytes) -> dict[str, bytes]:
 
 def joint_files(joint: str, board: BoardInfo = STOCK_PICO) -> dict[str, bytes]:
     """The files `bioscara flash` deploys for `joint` on `board` (board path -> content)."""
-    return flash.build_image(joint, board).files
+    return firmware_flash.build_image(joint, board).files
 
 
 def joint_image(joint: str, path: Path | None = None) -> bytes:

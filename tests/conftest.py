@@ -11,7 +11,7 @@ import pytest
 from bioscara.arm import Arm
 from bioscara.bus.sim import SimBus
 from bioscara.communicator import Communicator
-from bioscara.config import ArmConfig, load_config
+from bioscara.config import ArmConfig, read_config
 from bioscara.hardware import open_arm_bus
 
 
@@ -52,7 +52,7 @@ def private_home(tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.M
 @pytest.fixture
 def config() -> ArmConfig:
     """The shipped configuration on the in-process simulator (virtual time)."""
-    config = load_config()
+    config = read_config()
     return replace(config, bus=replace(config.bus, url="sim:virtual"))
 
 

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from bioscara.config import ArmConfig, load_config, parse_config, resolve_config
+from bioscara.config import ArmConfig, read_config, parse_config, load_config
 from bioscara.errors import ConfigError
 
 
@@ -32,7 +32,7 @@ def edited(tmp_path: Path, old: str, new: str) -> Path:
 
 def problems(path: Path) -> list[str]:
     with pytest.raises(ConfigError) as info:
-        load_config(path)
+        read_config(path)
     return info.value.detail.splitlines()
 
 
@@ -64,7 +64,7 @@ acceleration = 0.01
 
 
 def test_default_has_the_real_joint_values() -> None:
-    config = load_config()
+    config = read_config()
     assert list(config.joints) == ["j1", "j2", "j3", "j4"]
     j1, j2, j3, j4 = config.joints.values()
     assert (j1.type, j2.type, j3.type, j4.type) == ("revolute", "prismatic", "revolute", "revolute")
@@ -74,7 +74,7 @@ def test_default_has_the_real_joint_values() -> None:
     assert [(j.min, j.max) for j in (j1, j2, j3, j4)] == [
         (-3.04647, 3.04647), (-0.0016, 0.338), (-2.62672, 2.62672), (-3.01069, 3.01069)]
     assert [j.stall_threshold for j in (j1, j2, j3, j4)] == [6, 12, 6, 6]
-    assert [(j.hold_current, j.drive_current) for j in (j1, j2, j3, j4)] == [(20, 20), (40, 40), (20, 20), (20, 20)]
+    assert [(j.hold_current, j.drive_current) for j in (j1, j2, j3, j4)] == [(20, 20), (8, 8), (20, 20), (20, 20)]
     assert [(j.max_acceleration, j.max_velocity) for j in (j1, j2, j3, j4)] == [
         (2.0, 1.0), (0.2, 0.03), (14.0, 5.0), (30.0, 10.0)]
     homing = [j.homing for j in (j1, j2, j3, j4)]
@@ -84,7 +84,7 @@ def test_default_has_the_real_joint_values() -> None:
 
 
 def test_default_has_the_real_gripper_bus_and_sim_values() -> None:
-    config = load_config()
+    config = read_config()
     g = config.gripper
     assert g is not None
     assert (g.reduction, g.offset, g.min, g.max, g.init_pos) == (3333.3, 0.058, 0.04, 0.120, 0.08)
@@ -97,7 +97,7 @@ def test_default_has_the_real_gripper_bus_and_sim_values() -> None:
 
 
 def test_sim_start_is_inside_the_end_stop_that_homing_runs_into() -> None:
-    config = load_config()
+    config = read_config()
     for name, joint in config.joints.items():
         end_stop = joint.min if joint.homing.direction < 0 else joint.max
         assert 0 < abs(config.sim.start[name] - end_stop) < 0.1, name
@@ -105,7 +105,7 @@ def test_sim_start_is_inside_the_end_stop_that_homing_runs_into() -> None:
 
 
 def test_minimal_file_gets_the_optional_defaults(tmp_path: Path) -> None:
-    config = load_config(write(tmp_path, MINIMAL))
+    config = read_config(write(tmp_path, MINIMAL))
     assert list(config.joints) == ["j1"]
     assert config.joints["j1"].homing.direction == -1
     assert config.gripper is None
@@ -118,11 +118,11 @@ def test_minimal_file_gets_the_optional_defaults(tmp_path: Path) -> None:
 def test_joints_come_in_arm_order_whatever_the_file_order(tmp_path: Path) -> None:
     j1 = MINIMAL
     j2 = MINIMAL.replace("j1", "j2").replace("0x11", "0x12")
-    assert list(load_config(write(tmp_path, j2 + j1)).joints) == ["j1", "j2"]
+    assert list(read_config(write(tmp_path, j2 + j1)).joints) == ["j1", "j2"]
 
 
 def test_use_mock_hardware_selects_the_simulated_bus(tmp_path: Path) -> None:
-    config = load_config(write(tmp_path, '[bus]\nurl = "smbus:1"\nuse_mock_hardware = true\n' + MINIMAL))
+    config = read_config(write(tmp_path, '[bus]\nurl = "smbus:1"\nuse_mock_hardware = true\n' + MINIMAL))
     assert config.bus.url == "smbus:1"
     assert config.bus_url == "sim:virtual"
 
@@ -134,7 +134,7 @@ def test_parse_config_takes_a_parsed_table() -> None:
 
 
 def test_current_out_of_range(tmp_path: Path) -> None:
-    path = edited(tmp_path, "hold_current = 40", "hold_current = 120")
+    path = edited(tmp_path, "hold_current = 8", "hold_current = 120")
     assert only_problem(path) == f"{path}: joints.j2.hold_current = 120 is out of range 0..100"
 
 
@@ -211,7 +211,7 @@ def test_nan_and_inf(tmp_path: Path, literal: str) -> None:
 
 
 def test_bool_as_number(tmp_path: Path) -> None:
-    path = edited(tmp_path, "drive_current = 40", "drive_current = true")
+    path = edited(tmp_path, "drive_current = 8", "drive_current = true")
     assert only_problem(path) == f"{path}: joints.j2.drive_current = true must be an integer 0..100, not a boolean"
 
 
@@ -274,9 +274,9 @@ def test_sim_start_for_a_joint_that_is_not_configured(tmp_path: Path) -> None:
 def test_sim_payload_and_noise_shape_the_simulated_arm(tmp_path: Path) -> None:
     from bioscara.hardware import open_arm_bus
     path = edited(tmp_path, "payload_kg = 0.0", "payload_kg = 1.0")
-    heavy, bare = open_arm_bus(resolve_config(str(path))), open_arm_bus(resolve_config())  # in-process simulators
+    heavy, bare = open_arm_bus(load_config(str(path))), open_arm_bus(load_config())  # in-process simulators
     # J2 carries the payload's weight through its screw: more torque on the motor (sign: down).
-    assert heavy.joint(0x12).stepper._gravity < bare.joint(0x12).stepper._gravity < 0.0
+    assert heavy.joint(0x12).stepper._load_torque_nm < bare.joint(0x12).stepper._load_torque_nm < 0.0
     path = edited(tmp_path, 'noise = "nominal"', 'noise = "loud"')
     assert only_problem(path) == f'{path}: sim.noise = "loud" must be one of "nominal", "harsh"'
 
@@ -325,12 +325,12 @@ def test_no_joints(tmp_path: Path) -> None:
 
 def test_every_problem_is_listed(tmp_path: Path) -> None:
     text = (default_text()
-            .replace("hold_current = 40", "hold_current = 120", 1)
+            .replace("hold_current = 8", "hold_current = 120", 1)
             .replace("min = -3.04647\nmax = 3.04647", "min = 3.0\nmax = 1.0", 1)
             .replace("max_velocity = 1.0", "max_velocity = 1.0\nmax_velocty = 2.0", 1)
             .replace("address = 0x13", "address = 0x12", 1)
             .replace("max = 0.338", "max = nan", 1)
-            .replace("drive_current = 40", "drive_current = true", 1)
+            .replace("drive_current = 8", "drive_current = true", 1)
             .replace("init_pos = 0.08", "", 1))
     path = write(tmp_path, text)
     lines = problems(path)
@@ -353,7 +353,7 @@ def test_values_the_joint_would_refuse_are_caught_at_load_time(tmp_path) -> None
     path = tmp_path / "arm.toml"
     path.write_text(bad)
     with pytest.raises(ConfigError) as err:
-        load_config(path)
+        read_config(path)
     text = str(err.value)
     assert "joints.j1.homing.speed = 0.0001 is 0.0334 motor RPM" in text and "1..250 RPM" in text
     assert "joints.j1.max_velocity = 1000000000.0" in text and "0.001..1e6" in text

@@ -258,3 +258,22 @@ def test_a_collision_during_a_position_move_stops_the_arm(config: ArmConfig) -> 
     with pytest.raises(StalledError):
         comm.run_until(lambda: False, timeout=3)
     assert all(not aj.joint.is_enabled() for aj in arm.joints.values())
+
+
+def test_open_arm_as_a_context_manager_stops_and_disables_on_ctrl_c(config: ArmConfig, bus: SimBus) -> None:
+    from bioscara.hardware import open_arm
+    with pytest.raises(KeyboardInterrupt):
+        with open_arm(config, bus) as arm:  # configured on entry
+            arm.activate()
+            motion.home(arm, Communicator(arm, frequency=100.0, realtime_priority=None), ["j4"], timeout=60)
+            arm.switch_modes(start=["j4/velocity"])
+            arm.set_command("j4", "velocity", -1.0)
+            comm = Communicator(arm, frequency=100.0, realtime_priority=None)
+            comm.run_for(0.3)
+            assert abs(bus.joint(0x14).stepper.driver_rpm()) > 10.0
+            raise KeyboardInterrupt  # the user's Ctrl-C in the middle of the script
+    joint = bus.joint(0x14)
+    assert joint.core.flags & P.FLAG_NOTENABLED and joint.core.qd_set == 0, "stopped and disabled on the way out"
+    assert arm.lifecycle is Lifecycle.UNCONFIGURED and not arm["j4"].joint.is_open
+    bus.run_for(1.0)
+    assert joint.stepper.driver_rpm() == 0.0

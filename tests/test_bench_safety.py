@@ -157,3 +157,29 @@ def test_a_homing_sensitivity_within_the_noise_floor_counts_as_refused_not_faile
     assert r["refused"] and r["success"] and not r["false_homed"], r
     figures = dict(S.figures(results, ["original"]))
     assert figures["safety.homing_refused"] == 1
+
+
+def test_contacts_are_judged_in_newtons_per_body_region(reduced) -> None:
+    results, available = reduced
+    figures = dict(S.figures(results, available))
+    for region in M.ISO_TS_15066:
+        for joint in S.JOINTS:
+            assert f"safety.contact_force_n_max.{region}.{joint.lower()}" in figures
+    for name in ("safety.contacts_over_limit", "safety.pullout_force_n.j2"):
+        assert name in figures and not math.isnan(figures[name])
+    # A J2 contact at its shipped current: the motor pushes no harder than its pull-out force.
+    r = _result(results, S.Contact("J2", 250.0, 1, True, "harsh", "hand"))
+    assert 0.0 < r["force_n"] <= 1.1 * S.pullout_force_n("J2") and not r["over"], r
+    assert figures["safety.contact_force_n_max.hand.j2"] >= r["force_n"]
+
+
+def test_a_contact_is_over_its_limit_when_either_phase_is() -> None:
+    contact = S.Contact("J3", 120.0, 1, False, "nominal", "hand")
+    base = {"limit_n": 140.0, "detected": True, "false_stall": False, "lost_steps": False, "stall_force_n": 1.0}
+    cases = [({"transient_n": 279.0, "quasi_static_n": 139.0, "force_n": 279.0, "over": False}, 0),
+             ({"transient_n": 281.0, "quasi_static_n": 10.0, "force_n": 281.0, "over": True}, 1),
+             ({"transient_n": 100.0, "quasi_static_n": 141.0, "force_n": 141.0, "over": True}, 1)]
+    for result, over in cases:
+        figures = dict(S.figures([(contact, dict(base, **result))], ["tracking"]))
+        assert figures["safety.contacts_over_limit"] == over
+        assert figures["safety.contact_force_n_max.hand.j3"] == result["force_n"]

@@ -110,17 +110,16 @@ def test_info_reports_identity_and_flags(capsys: pytest.CaptureFixture[str]) -> 
     assert "{" not in out and "e-05" not in out, "no Python reprs"
 
 
-def test_scan_and_info_show_the_protocol_and_protocol_forces_one(capsys: pytest.CaptureFixture[str],
-                                                                 bus: SimBus) -> None:
+def test_scan_and_info_only_read_they_switch_no_protocol(capsys: pytest.CaptureFixture[str], bus: SimBus) -> None:
     code, out, _ = run(capsys, "scan", "--json", bus=bus)
     assert code == 0 and all(d["protocols"] == "legacy+v2" for d in json.loads(out))
     code, out, _ = run(capsys, "info", "j2", "--json", bus=bus)
     info = json.loads(out)
-    assert code == 0 and info["protocol"] == "v2" and info["v2_link"]["bad_states"] == 0
-    assert bus.joint(0x12).protocol == 1, "info returns the joint to the legacy map when done"
-    code, out, _ = run(capsys, "info", "j2", "--json", "--protocol", "legacy", bus=bus)
-    assert code == 0 and json.loads(out)["protocol"] == "legacy" and "v2_link" not in json.loads(out)
-    code, _, err = run(capsys, "info", "j2", "--protocol", "v3", bus=bus)
+    assert code == 0 and info["commanded_by"] is None and info["spec_matches"]
+    assert bus.joint(0x12).protocol == 1, "info reads the legacy map and switches nothing"
+    code, _, err = run(capsys, "info", "j2", "--protocol", "v2", bus=bus)
+    assert code == 2 and "only reads" in err and bus.joint(0x12).protocol == 1
+    code, _, err = run(capsys, "move", "j2", "0.1", "--protocol", "v3", bus=bus)
     assert code == 2 and "invalid choice: 'v3'" in err
 
 
@@ -239,8 +238,8 @@ def test_scan_is_a_bring_up_check(capsys: pytest.CaptureFixture[str], config, tm
         entries[0x13]["problems"][0]
     assert "misaddressed: j3 (by IDENTITY) answers here" in entries[0x40]["problems"][0]
     from pathlib import Path
-    from bioscara.config import load_config
-    text = Path(load_config().source).read_text()
+    from bioscara.config import read_config
+    text = Path(read_config().source).read_text()
     three = tmp_path / "three.toml"
     three.write_text(text[:text.index("[joints.j4]")] + text[text.index("[gripper]"):].replace("j4 = 2.95\n", ""))
     code, out, _ = run(capsys, "scan", "--json", "--config", str(three), bus=_bus_with(config))
@@ -261,7 +260,7 @@ def test_one_shape_for_the_command_line(capsys: pytest.CaptureFixture[str], tmp_
     assert code == 0 and out.strip() == f"bioscara {__version__}"
     assert json.loads(run(capsys, "--json", "stop")[1]) == json.loads(run(capsys, "stop", "--json")[1])
     code, _, err = run(capsys, "--json", "shell")
-    assert code == 2 and "`bioscara shell` has no --json output" in err
+    assert code == 2 and "`bioscara shell` takes no --json" in err
     for argv, option in ((("plot", "x.csv", "--config", "a.toml"), "--config"), (("demo", "--bus", "smbus:1"), "--bus"),
                          (("console", "/dev/ttyACM0", "--json"), "--json"), (("sim", "stop", "--bus", "smbus:1"), "--bus"),
                          (("scan", "--protocol", "v2"), "--protocol"),
@@ -273,9 +272,10 @@ def test_one_shape_for_the_command_line(capsys: pytest.CaptureFixture[str], tmp_
 
 
 def test_piped_output_is_plain_lines(capsys: pytest.CaptureFixture[str], bus: SimBus) -> None:
-    code, out, _ = run(capsys, "home", "j3", bus=bus)
-    assert code == 0 and out.splitlines()[-2:] == [out.splitlines()[-2], out.splitlines()[-1]]
-    assert re.fullmatch(r"j3: homed at \+2\.\d{5} rad\nhomed j3 in \d+\.\d s\n", out), out
+    code, out, err = run(capsys, "home", "j3", bus=bus)
+    assert code == 0
+    assert re.fullmatch(r"j3: homed at \+2\.\d{5} rad\nj3: travelled [-+]\d\.\d{3} rad\nhomed j3 in \d+\.\d s\n", out), out
+    assert re.match(r"j3 homing, travel [-+]\d\.\d{3} rad; \d+\.\d s$", err.splitlines()[0]), "progress on stderr"
     assert "\x1b" not in out
     code, out, _ = run(capsys, "monitor", "--samples", "2", bus=bus)
     lines = out.splitlines()
@@ -285,9 +285,9 @@ def test_piped_output_is_plain_lines(capsys: pytest.CaptureFixture[str], bus: Si
 def test_hardware_doc_has_the_generated_pin_map_and_the_readme_cites_only_files_in_the_repo() -> None:
     from pathlib import Path
 
-    from bioscara import flash, wiring
+    from bioscara import firmware_flash, wiring
     root = Path(__file__).resolve().parent.parent
-    assert wiring.markdown(flash.joint_config("J1")[1]) in (root / "docs" / "hardware.md").read_text(), \
+    assert wiring.markdown(firmware_flash.joint_config("J1")[1]) in (root / "docs" / "hardware.md").read_text(), \
         "docs/hardware.md: paste the output of `bioscara pins j1 --markdown`"
     readme = (root / "README.md").read_text()
     for cited in re.findall(r"`([\w./-]+\.md)`", readme):
@@ -319,16 +319,71 @@ def test_user_config_file_and_bus_environment_variable(capsys: pytest.CaptureFix
     import os
     from pathlib import Path
 
-    from bioscara.config import load_config, user_config_path
+    from bioscara.config import read_config, user_config_path
     path = user_config_path()
     assert path == Path(os.environ["XDG_CONFIG_HOME"]) / "bioscara" / "arm.toml"
     path.parent.mkdir(parents=True)
-    path.write_text(Path(load_config().source).read_text().replace("address = 0x14", "address = 0x24"))
+    path.write_text(Path(read_config().source).read_text().replace("address = 0x14", "address = 0x24"))
     code, out, _ = run(capsys, "info", "j4", "--json")
     assert code == 0 and json.loads(out)["address"] == 0x24, "the user's configuration was used"
+    from bioscara.config import load_config
+    from bioscara.hardware import open_arm
+    assert load_config().joints["j4"].address == 0x24, "and the API's, as the README's script calls it"
     monkeypatch.setenv("BIOSCARA_BUS", "smbus:/dev/i2c-77")
     code, _, err = run(capsys, "scan")
     assert code == 1 and "cannot open /dev/i2c-77" in err, "the variable chose the bus"
+    assert load_config().bus_url == "smbus:/dev/i2c-77"
+    with pytest.raises(OSError, match="cannot open /dev/i2c-77"):
+        open_arm()
     monkeypatch.setenv("BIOSCARA_BUS", "pigeon:")
     code, _, err = run(capsys, "scan")
     assert code == 2 and "in $BIOSCARA_BUS" in err
+
+
+def test_the_unit_hint_only_when_the_value_makes_sense_in_degrees_or_mm(capsys: pytest.CaptureFixture[str],
+                                                                       bus: SimBus) -> None:
+    """2.7 is j3's limit overshot in rad (±2.627), not 2.7 degrees: no hint; 90 is degrees."""
+    code, _, err = run(capsys, "move", "j3", "2.7", bus=bus)
+    assert code == 2 and "2.7 rad is outside the limits" in err and "degrees" not in err
+    code, _, err = run(capsys, "move", "j3", "90", bus=bus)
+    assert code == 2 and "90 degrees is 1.57080 rad" in err
+
+
+@pytest.mark.parametrize("argv", [["--bus", "sim:virtual", "scan", "--json"], ["scan", "--bus", "sim:virtual", "--json"],
+                                  ["--json", "--protocol", "legacy", "info", "j1"], ["--config", "{config}", "--json", "scan"]])
+def test_global_options_before_or_after_the_command(capsys: pytest.CaptureFixture[str], argv: list[str]) -> None:
+    from bioscara.config import load_config
+    argv = [arg.replace("{config}", load_config().source) for arg in argv]
+    code, out, err = run(capsys, *argv)
+    assert code == 0, err
+    if "info" in argv:
+        assert json.loads(out)["protocol"] == "legacy"
+    else:
+        assert [d["joint"] for d in json.loads(out)] == ["j1", "j2", "j3", "j4"]
+
+
+def test_a_global_option_the_command_does_not_take_is_refused(capsys: pytest.CaptureFixture[str]) -> None:
+    code, _, err = run(capsys, "--bus", "sim:virtual", "pins", "j1")
+    assert code == 2 and "`bioscara pins` takes no --bus" in err
+
+
+def test_piped_tables_are_plain_columns(capsys: pytest.CaptureFixture[str]) -> None:
+    code, out, _ = run(capsys, "scan")  # capsys: stdout is not a terminal
+    assert code == 0 and re.search(r"^ *0x11 +j1 +joint", out, re.M)
+    assert not set(out) & set("┏┃━│┌└─"), out
+
+
+def test_pins_of_a_joint_that_does_not_exist_names_the_joints(capsys: pytest.CaptureFixture[str]) -> None:
+    code, _, err = run(capsys, "pins", "j7")
+    assert code == 2 and err.strip() == "error: no joint j7; the joints are j1, j2, j3, j4 (or a FILE.json you wrote)"
+
+
+def test_a_json_lines_recording_cut_by_a_kill_still_plots(capsys: pytest.CaptureFixture[str], tmp_path,
+                                                          caplog: pytest.LogCaptureFixture) -> None:
+    record = tmp_path / "trace.jsonl"
+    run(capsys, "monitor", "--samples", "5", "--record", str(record))
+    text = record.read_text()
+    record.write_text(text[:len(text) - 20])  # the last row half written, as a kill leaves it
+    code, out, err = run(capsys, "plot", str(record), "--json")
+    assert code == 0, err
+    assert "skipped the last line, cut short" in caplog.text and json.loads(out)["rows"] == 4

@@ -10,10 +10,10 @@ from collections.abc import Callable, Iterator
 
 import pytest
 
-from bioscara.bus import open_bus
+from bioscara.transports import open_bus
 from bioscara.cli import main
-from bioscara.config import load_config
-from bioscara.console import CSV_HEADER, JointConsole, plot
+from bioscara.config import read_config
+from bioscara.serial_console import CSV_HEADER, JointConsole, plot
 from bioscara.firmware.spec import protocol as P
 from bioscara.hardware import sim_joint_specs
 from bioscara.joint import Joint
@@ -44,7 +44,7 @@ class Lines:
 
 @pytest.fixture(scope="module")
 def server() -> Iterator[SimServer]:
-    config = load_config()
+    config = read_config()
     with SimServer(sim_joint_specs(config), seed=config.sim.seed) as server:
         yield server
 

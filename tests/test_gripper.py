@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from bioscara.config import GripperConfig, load_config
+from bioscara.config import GripperConfig, read_config
 from bioscara.errors import (BioscaraError, CommError, IncorrectStateError, InvalidArgumentError, NotEnabledError,
                              NotInitError)
 from bioscara.gripper import BaseGripper, Gripper, MockGripper, servo_pulse_us
@@ -460,7 +460,7 @@ def test_pwm_is_off_even_when_saving_fails(config: GripperConfig, root: Path, ti
 
 
 def test_default_state_files_live_in_the_xdg_state_dir(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
-    gc = load_config().gripper
+    gc = read_config().gripper
     assert gc is not None and gc.state_file == ""
     monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path / "xdg"))
     assert Gripper(gc).state_file == tmp_path / "xdg" / "bioscara" / "gripper_position"

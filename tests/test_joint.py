@@ -11,6 +11,7 @@ from bioscara.config import ArmConfig
 from bioscara.errors import (
     IncorrectStateError, InvalidArgumentError, NotEnabledError, NotHomedError, NotInitError,
 )
+from bioscara.firmware.motion.hal import MAGNET_MISSING, MAGNET_OK, MAGNET_WEAK
 from bioscara.firmware.spec import protocol as P
 from bioscara.joint import BlockingCommand, Joint, WaitTimeoutError
 
@@ -133,3 +134,21 @@ def test_identity_and_rejection_details(config: ArmConfig, bus: SimBus) -> None:
     with pytest.raises(IncorrectStateError, match="rejected CHECKORIENTATION: a blocking command is already"):
         joint.write_register("CHECKORIENTATION", 2.0)
     assert joint.last_reject().reason == P.REJECT_BUSY
+
+
+@pytest.mark.parametrize("reports, why", [(MAGNET_WEAK, "magnet too weak"), (MAGNET_MISSING, "no magnet"),
+                                          (MAGNET_OK, "too noisy at rest \\(weak or missing magnet\\)")])
+def test_a_homing_the_joint_refuses_says_why(config: ArmConfig, bus: SimBus, reports: int, why: str) -> None:
+    """A weak magnet (the simulator's fault mode): the joint refuses to home and the host's error
+    quotes its reason (HOMINGRESULT), not only "not homed": the encoder's status when it reports the
+    magnet, the noise check when its status says nothing (a marginal magnet)."""
+    joint = make(config, bus)
+    bus.joint(0x11).stepper.weaken_magnet(reports=reports)
+    jc = config.joints["j1"]
+    joint.enable(jc.drive_current, jc.hold_current)
+    before = bus.joint(0x11).stepper.rotor_angle()
+    with pytest.raises(NotHomedError, match=why):
+        joint.home(math.copysign(jc.homing.speed, jc.homing.direction), jc.homing.threshold, jc.homing.current,
+                   timeout=60)
+    assert not joint.is_homed()
+    assert abs(bus.joint(0x11).stepper.rotor_angle() - before) < 5.0  # refused before it drove

@@ -7,6 +7,7 @@ test steps it, in the simulator's virtual time, so every scenario is determinist
 from __future__ import annotations
 
 import asyncio
+import math
 import threading
 from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
@@ -14,14 +15,17 @@ from dataclasses import replace
 from pathlib import Path
 
 import pytest
+from textual.widgets import Button, Input, Select
 
+from bioscara import motion
 from bioscara.arm import Lifecycle, Mode
 from bioscara.bus.sim import SimBus
 from bioscara.cli import main
+from bioscara.communicator import Communicator
 from bioscara.config import ArmConfig
 from bioscara.hardware import open_arm, open_arm_bus, open_gripper
-from bioscara.panel.app import JOG_STEP, PanelApp
-from bioscara.panel.model import PanelModel
+from bioscara.panel.app import JOG_STEP, PanelApp, _plot_groups
+from bioscara.panel.model import SIGNALS, PanelModel
 from bioscara.panel.screenshot import render_screenshot
 
 SIZE = (160, 50)
@@ -233,3 +237,110 @@ def test_panel_needs_a_terminal_or_web(capsys: pytest.CaptureFixture[str]) -> No
     assert main(["panel"]) != 0  # pytest's stdout is not a terminal
     assert "needs a terminal" in capsys.readouterr().err
     assert main(["panel", "--rate", "0"]) != 0
+
+
+KEYS = ("a", "g", "p", "h", "H", "1", "2", "3", "4", "left", "right", "tab", "escape")
+
+
+async def every_key_and_button(app: PanelApp, model: PanelModel, pilot: object) -> None:
+    """Press every binding, then click every enabled button and submit every input; the arm cycles
+    and the plot is redrawn (every signal, every group) after each. A crash ends `run_test` with it."""
+    async def redraw() -> None:
+        model.step(0.1)
+        app.refresh_view()
+        app.refresh_slow()
+        await pilot.pause()  # type: ignore[attr-defined]
+    for key in KEYS:
+        await pilot.press(key)  # type: ignore[attr-defined]
+        await redraw()
+    for button in list(app.query(Button)):
+        if not button.disabled and button.id is not None:
+            await pilot.click(f"#{button.id}")  # type: ignore[attr-defined]
+            await redraw()
+    for box in list(app.query(Input)):
+        for text in ("0.1", "x", "1e9"):
+            await pilot.click(f"#{box.id}")  # type: ignore[attr-defined]
+            await pilot.press(*text, "enter")  # type: ignore[attr-defined]
+            await redraw()
+    for selector, options in (("#signals", SIGNALS), ("#plotted", [value for _, value in _plot_groups(model)])):
+        for option in options:
+            app.query_one(selector, Select).value = option
+            await redraw()
+    await pilot.press("escape")  # type: ignore[attr-defined]
+    await redraw()
+
+
+@pytest.mark.parametrize("state", ["nothing configured", "j3 and j4 homed", "a joint unplugged", "a stall"])
+def test_every_key_and_button_in_every_state(config: ArmConfig, state: str) -> None:
+    """Tab, a, a, p with j1/j2 not homed used to end the panel in plotext's IndexError."""
+    if state == "a stall":
+        config = replace(config, joints={**config.joints, "j1": replace(config.joints["j1"], max_velocity=0.36)})
+
+    async def scenario() -> None:
+        async with panel(config) as (app, model, pilot):
+            bus = model.arm.bus
+            assert isinstance(bus, SimBus)
+            if state == "j3 and j4 homed":
+                homed = open_arm(replace(config, joints={n: config.joints[n] for n in ("j3", "j4")}), bus)
+                homed.configure()
+                homed.activate()
+                motion.home(homed, Communicator(homed, 100.0), timeout=120)
+                homed.release()
+                for key in ("tab", "a", "a", "p"):  # the crash of the issue
+                    await pilot.press(key)
+                    model.step(0.1)
+                    app.refresh_view()
+                    app.refresh_slow()
+                    await pilot.pause()
+                view = model.view()
+                assert [j.homed for j in view.joints] == [False, False, True, True]
+                assert all(math.isfinite(j.position) == j.homed for j in view.joints)
+            elif state == "a joint unplugged":
+                bus.joint(model.arm["j3"].config.address).connected = False
+            elif state == "a stall":
+                await home_everything(app, model, pilot)
+                await pilot.press("p")
+                await pilot.click("#j1-goto")
+                await pilot.press(*"0.0", "enter")
+                await settle(app, pilot, model, lambda: False, 1.0)
+                stepper = bus.joint(model.arm["j1"].config.address).stepper
+                stepper.add_obstacle(stepper.rotor_angle() + 30.0, 1)
+                assert await settle(app, pilot, model, lambda: model.arm.fault is not None, 5)
+            await every_key_and_button(app, model, pilot)
+            assert app.is_running
+    asyncio.run(scenario())
+
+
+def test_unknown_until_read_first_focus_on_the_arm_and_every_known_joint_plotted(config: ArmConfig) -> None:
+    async def scenario() -> None:
+        async with panel(config) as (app, model, pilot):
+            assert not isinstance(app.focused, Input), "the keys act on the arm, they type nowhere"
+            model.step(0.5)
+            app.refresh_view()
+            app.refresh_slow()
+            await pilot.pause()
+            assert all(cell(app, name, "flags") == "unknown" and cell(app, name, "homed") == "?"
+                       for name in model.arm.joints), "not NOTHOMED|NOTENABLED before anything was read"
+            assert all("unknown" in label(app, f"#{name}-homed") for name in model.arm.joints)
+            assert app.plotted == [], "nothing plotted at 0.0 before the joints are read"
+            await home_everything(app, model, pilot)
+            app.refresh_slow()
+            await pilot.pause()
+            assert app.plotted == ["j1", "j3", "j4"], "every rotary joint has its line"
+            assert cell(app, "j1", "homed") == "yes" and "NOTENABLED" not in cell(app, "j1", "flags")
+    asyncio.run(scenario())
+
+
+def test_the_plot_survives_samples_older_than_its_axis(config: ArmConfig) -> None:
+    """A slow cycle (a loaded machine, the web panel) spreads the kept samples over more than the
+    axis: a joint whose values all lie before it used to crash plotext (IndexError in _build.py)."""
+    async def scenario() -> None:
+        async with panel(config) as (app, model, pilot):
+            span = model.samples.maxlen / model.comm.frequency  # type: ignore[operator]
+            old = {"j1/position": 1.0, "j3/position": 2.0, "j4/position": 3.0}
+            model.samples.extend((t, dict(old)) for t in (0.0, 1.0))
+            model.samples.append((3 * span, {"j1/position": math.nan, "j3/position": 2.1, "j4/position": math.nan}))
+            app.refresh_slow()
+            await pilot.pause()
+            assert app.plotted == ["j3"] and app.is_running
+    asyncio.run(scenario())

@@ -35,9 +35,12 @@ def session_block() -> list[tuple[str, list[str]]]:
     return steps
 
 
+BOX = str.maketrans("", "", "│┃┏┓┗┛━─┡┩╇┳┻╋┼┌┐└┘├┤")  # the README shows a terminal; piped, tables have no box
+
+
 def pattern(expected: str) -> re.Pattern[str]:
     """`…` matches anything (with the spaces around it); a space matches any run of spaces (table padding)."""
-    parts = [re.escape(part.strip()).replace("\\ ", r"\s+") for part in expected.split("…")]
+    parts = [re.escape(part.strip()).replace("\\ ", r"\s+") for part in expected.translate(BOX).split("…")]
     return re.compile(r"\s*.*?\s*".join(parts))
 
 

@@ -20,9 +20,9 @@ from dataclasses import replace
 import pytest
 
 from bioscara.arm import make_joint
-from bioscara.bus import open_bus
+from bioscara.transports import open_bus
 from bioscara.bus.serial import SerialBus
-from bioscara.config import ArmConfig, load_config
+from bioscara.config import ArmConfig, read_config
 from bioscara.errors import CommError, ConfigError
 from bioscara.firmware.spec import protocol as P
 from bioscara.hardware import sim_joint_specs
@@ -34,7 +34,7 @@ from bioscara.sim_server import Pty, SimServer
 @pytest.fixture
 def config() -> ArmConfig:
     """The shipped arm, each joint starting just inside the end stop it homes into (real time: short)."""
-    config = load_config()
+    config = read_config()
     start = {}
     for name, jc in config.joints.items():
         margin = 0.02 if jc.type == "revolute" else 0.001  # rad, m

@@ -21,7 +21,8 @@ from bioscara.cli import main
 from bioscara.commands.shell import Context, _completer, interactive
 from bioscara.config import ArmConfig
 from bioscara.firmware.spec import protocol as P
-from bioscara.shell import Shell
+from bioscara.hardware import sim_joint_specs
+from bioscara.shell_interpreter import Shell
 
 from conftest import Recorder
 
@@ -319,8 +320,8 @@ def test_the_shell_keeps_active_joints_alive_and_names_fault_causes(config: ArmC
     shell = console.shell
     try:
         console.ok("configure", "activate")
-        assert shell.communicator.running, "started by activate"
-        assert "keeps the active joints fed" in console.out[-1]
+        assert shell.communicator.running, "started by configure"
+        assert any("keeps the joints fed" in line for line in console.out)
         console.ok("mode j4 home", "set j4 home 1")
         _wait_for(lambda: arm["j4"].state.home == 1.0, timeout=20.0, clock=bus.monotonic)
         console.ok("mode j4 position", "set j4 position 2.5", "wait 0.2")
@@ -417,3 +418,45 @@ def test_protocol_chooses_the_shells_and_the_panels_protocol(config: ArmConfig) 
     finally:
         model.close()
         session.close()
+
+
+def test_a_pause_after_configure_keeps_the_joints_on_protocol_v2(config: ArmConfig,
+                                                                 caplog: pytest.LogCaptureFixture) -> None:
+    """Two seconds between `configure` and `activate` (a person typing) used to print four
+    "serves the legacy map again" warnings: the communicator now keeps the joints fed from `configure`."""
+    bus = SimBus(sim_joint_specs(config), realtime=True)
+    arm = Arm(config, bus)
+    console = Console(config, bus, arm, keep_alive=True)
+    try:
+        console.ok("configure")
+        assert console.shell.communicator.running
+        cycles = console.shell.communicator.stats.cycles
+        time.sleep(2.0)  # the pause is the scenario: the host has nothing to say for 2 s
+        assert console.shell.communicator.stats.cycles > cycles
+        console.ok("activate")
+        assert "legacy map" not in caplog.text
+        assert all(aj.joint.protocol == "v2" for aj in arm.joints.values())
+    finally:
+        console.shell.close()
+        bus.close()
+
+
+def test_leaving_the_shell_stops_the_arm_says_so_and_the_joints_keep_holding(config: ArmConfig) -> None:
+    """Ctrl-D used to disable (freewheel) every joint without a word."""
+    import argparse
+
+    from bioscara.commands.shell import close_context
+    from bioscara.session import Session
+
+    bus = SimBus(sim_joint_specs(config))
+    arm = Arm(config, bus)
+    console = Console(config, bus, arm)
+    console.ok("configure", "activate")
+    said: list[str] = []
+    session = Session(argparse.Namespace(bus="sim:virtual"))
+    session.err = said.append  # type: ignore[method-assign]
+    close_context(console.shell, Context(config, bus, arm), session)
+    assert len(said) == 1 and said[0].startswith("leaving the shell: stopped j1 ") and "keep holding" in said[0]
+    assert arm.lifecycle is Lifecycle.UNCONFIGURED
+    assert all(not bus.joint(aj.config.address).core.flags & P.FLAG_NOTENABLED for aj in arm.joints.values()), \
+        "still enabled: holding, not freewheeling"

@@ -14,10 +14,9 @@ import signal
 import socket
 import stat
 import subprocess
-import sys
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
@@ -25,59 +24,15 @@ import pytest
 
 from bioscara import cli, sim_service
 from bioscara.arm import make_joint
-from bioscara.config import load_config
+from bioscara.config import read_config
 from bioscara.errors import CommError, ConfigError
 from bioscara.hardware import sim_joint_specs
 from bioscara.sim_server import SimServer
 from bioscara.sim_service import ServiceBus
+from sim_session import bioscara, quick_config, state_dir, wait_until  # noqa: F401 (fixtures)
 
-SPECS = sim_joint_specs(load_config())
+SPECS = sim_joint_specs(read_config())
 IDLE_EXIT_S = 60.0  # a run that is killed before its teardown leaves no service for longer
-
-
-@pytest.fixture
-def state_dir(private_home: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[Path]:
-    """The state directory of this test's service; `sim:` is the shared arm here. Stopped at the end."""
-    monkeypatch.delenv("BIOSCARA_BUS")
-    path = private_home / "state" / "bioscara"
-    yield path
-    status = sim_service.status(path) if path.exists() else None
-    if status is not None and not sim_service.stop(path):
-        os.kill(status["pid"], signal.SIGKILL)
-
-
-def wait_until(condition, timeout: float = 10.0) -> bool:  # type: ignore[no-untyped-def]
-    deadline = time.monotonic() + timeout
-    while not condition():
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(0.01)
-    return True
-
-
-def quick_config(tmp_path: Path) -> Path:
-    """The shipped arm with every joint starting just inside the end stop it homes into (real time: short)."""
-    text = (Path(load_config().source)).read_text()
-    head, _, _ = text.partition("[sim.start]")
-    path = tmp_path / "arm.toml"
-    path.write_text(head + "[sim.start]\nj1 = -3.03\nj2 = 0.3375\nj3 = 2.61\nj4 = 2.99\n")
-    return path
-
-
-@pytest.fixture
-def bioscara() -> Iterator[Callable[..., subprocess.Popen[str]]]:
-    """Starts `bioscara ARGS...` in the background; what still runs at the end is killed."""
-    started: list[subprocess.Popen[str]] = []
-
-    def spawn(*argv: str) -> subprocess.Popen[str]:
-        started.append(subprocess.Popen([sys.executable, "-m", "bioscara.cli", *argv], stdout=subprocess.PIPE,
-                                        stderr=subprocess.PIPE, text=True))
-        return started[-1]
-    yield spawn
-    for process in started:
-        if process.poll() is None:
-            process.kill()
-            process.communicate()
 
 
 def test_state_is_kept_between_commands_and_clients_share_the_arm(
@@ -87,12 +42,11 @@ def test_state_is_kept_between_commands_and_clients_share_the_arm(
     assert cli.main(["home", "j3", "--config", config]) == 0
     assert cli.main(["move", "j3", "2.0", "--config", config]) == 0, "the next command finds j3 homed"
     record = tmp_path / "run.csv"
-    # Two processes on one joint at once: the legacy protocol (v2 keeps one sequence per host).
+    # Two processes on one joint at once, each in its default protocol: the monitor only watches.
     monitor = bioscara("monitor", "--config", config, "--rate", "20", "--duration", "3", "--record",
-                       str(record), "--json", "--protocol", "legacy")
+                       str(record), "--json")
     assert wait_until(lambda: record.exists() and len(record.read_text().splitlines()) > 3)
-    assert cli.main(["move", "j3", "1.0", "--config", config, "--protocol", "legacy"]) == 0, \
-        "a move beside the monitor"
+    assert cli.main(["move", "j3", "1.0", "--config", config]) == 0, "a move (v2) beside the monitor"
     out, err = monitor.communicate(timeout=30)
     assert monitor.returncode == 0, err
     assert json.loads(out.splitlines()[-1])["summary"]["errors"] == 0
@@ -189,7 +143,7 @@ def test_an_unused_arm_ends_by_itself_a_client_or_a_moving_joint_keeps_it(state_
     assert sim_service.start(state_dir, SPECS, idle_exit_s=1.0)
     socket_file = state_dir / "sim.sock"
     bus = ServiceBus(SPECS, state_dir, autostart=False)
-    joint = make_joint(load_config().joints["j1"], bus)
+    joint = make_joint(read_config().joints["j1"], bus)
     joint.init()
     time.sleep(2.0)  # twice the idle exit
     assert socket_file.exists(), "a connected client keeps it"

@@ -11,6 +11,7 @@ from bioscara.bus.sim import SimBus, SimJointSpec
 from bioscara.firmware.spec import protocol as P
 from bioscara.firmware.spec import protocol_v2 as V
 from bioscara.joint import Joint
+from bioscara.link import Command
 
 J1 = SimJointSpec("J1", 0x11, 35.0, -3.04647, 3.04647, 0.0)
 
@@ -50,7 +51,7 @@ def test_a_new_v2_host_takes_over_at_once(abandoned) -> None:
     new.enable(40, 30)
     samples = []
     for _ in range(3):
-        samples.append(new.cycle_v2(P.SETRPM, 20.0))
+        samples.append(new.cycle(Command(P.SETRPM, P.register(P.SETRPM).encode(20.0))))  # 20 motor rpm, unguarded
         bus.sleep(0.01)
     assert None not in samples[1:] and bus.joint(0x11).stepper.driver_rpm() > 0.5
     new.close()

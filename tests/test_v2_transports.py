@@ -11,10 +11,11 @@ from dataclasses import replace
 import pytest
 from smbus2 import i2c_msg
 
-from bioscara.bus import open_bus
+from bioscara.transports import open_bus
 from bioscara.bus.base import Bus
 from bioscara.bus.blinka import BlinkaBus
 from bioscara.bus.sim import SimBus, SimJointSpec
+from bioscara.firmware.spec import protocol as P
 from bioscara.bus.smbus import SMBusBus
 from bioscara.firmware.spec import protocol_v2 as V
 from bioscara.joint import Joint
@@ -97,7 +98,7 @@ def test_v2_runs_through_each_transport_one_transaction_per_exchange(transport: 
     wire.transactions.clear()
     samples = []
     for _ in range(10):
-        samples.append(joint.cycle_v2())
+        samples.append(joint.cycle())
         bus.sleep(0.002)
     assert len(wire.transactions) == 10, "one transaction per exchange"
     assert all(len(w) == V.MAILBOX_SIZE and n == V.STATE_SIZE for w, n in wire.transactions)
@@ -117,7 +118,7 @@ def test_v2_through_the_hil_bridge_on_the_simulators_pty() -> None:
             joint.enable(40, 30)
             assert joint.is_enabled()
             for _ in range(5):
-                assert joint.v2.poll().flags == joint.flags  # type: ignore[union-attr]
+                assert joint.link.read(P.register(P.PING))[1] == joint.flags
             joint.close()
             assert bus.transfer(0x11, b"\x0f", 2)[0] == ord("O"), "legacy again"
             assert bus.link.crc_errors == 0 and bus.link.timeouts == 0

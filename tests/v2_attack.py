@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 from bioscara.bus.base import Bus
 from bioscara.firmware.spec import protocol as P
 from bioscara.firmware.spec import protocol_v2 as V
-from bioscara.v2link import V2Link
+from bioscara.link.v2 import V2Link
 
 from v2rig import V2Rig
 

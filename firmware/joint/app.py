@@ -5,9 +5,9 @@ hardware at import time. An invalid configuration or a motor backend that fails 
 the joint disabled, reporting why on the serial console, instead of crashing.
 """
 
+from . import micro
 from .core.clock import MonotonicClock
 from .core.controller import JointController
-from .console.debug import DebugConsole, UsbStdio
 from .links.i2c_target import I2CTargetAdapter
 from .console.log import Logger
 from .spec.protocol_v2 import MEM_ADDRSIZE
@@ -17,17 +17,25 @@ from .links.memmap_v2 import ProtocolSwitch
 _SLOW_EVERY_MASK = 3  # the console and the legacy protocol switch: every 4th main-loop iteration
 
 
+def board_module(path):
+    return micro.board_module(__name__[:-len(".app")], path)
+
+
 def build_motor(cfg):
-    if cfg.motor.get("backend") == "pico":
-        from .pico.motor import PicoStepper
-        return PicoStepper.from_config(cfg.motor)
+    backend = cfg.motor.get("backend")
+    if backend == "pico":
+        return board_module("pico.motor").PicoStepper.from_config(cfg.motor)
+    if backend == "s32":
+        return board_module("s32.board").build_stepper(cfg.motor)
     raise ValueError("motor backend %r cannot run on a board" % cfg.motor.get("backend"))
 
 
-def build(machine, config_path=CONFIG_FILE, clock=None, write=None):
-    """Load the configuration and create the controller; returns (core, cfg, log)."""
-    from .config import schema as config  # boot only (see _drop_boot_only)
-    cfg = config.load(config_path)
+def build(machine, config_path=CONFIG_FILE, clock=None, write=None, cfg=None):
+    """Load the configuration (unless `cfg` is given: a board without a filesystem) and create
+    the controller; returns (core, cfg, log)."""
+    if cfg is None:
+        from .config import schema as config  # boot only (see _drop_boot_only)
+        cfg = config.load(config_path)
     log = Logger(cfg.joint or "joint", write=write)
     motor = None
     if cfg.valid:
@@ -76,12 +84,12 @@ def bus_activity_probe(machine, bus):
     activity bit; elsewhere none (always false: a torn state block is then caught by its CRC)."""
     mem32 = getattr(machine, "mem32", None)
     if _on_rp2040(machine):
-        from .pico import IC_STATUS, SLV_ACTIVITY, i2c_registers
-
-        status = i2c_registers(bus) + IC_STATUS
+        pico = board_module("pico")
+        status = pico.i2c_registers(bus) + pico.IC_STATUS
+        activity = pico.SLV_ACTIVITY
 
         def active():
-            return mem32[status] & SLV_ACTIVITY
+            return mem32[status] & activity
         return active
 
     def never():
@@ -89,16 +97,17 @@ def bus_activity_probe(machine, bus):
     return never
 
 
-def join_bus(machine, core, cfg, log):
+def join_bus(machine, core, cfg, log, target_pins=True):
     """Become an I2C target once booted, as the original registered its handlers last. Serves the
-    legacy map; the returned ProtocolSwitch moves to v2 when the host asks (main loop)."""
+    legacy map; the returned ProtocolSwitch moves to v2 when the host asks (main loop).
+    `target_pins`: pass the configured pins (rp2); the stm32 port's buses have fixed pins."""
     if cfg.address is None:
         log.error("no valid I2C address configured: not joining the bus")
         return None
     i2c = cfg.i2c
 
     def make_target(mem):
-        pins = {"scl": machine.Pin(i2c.scl), "sda": machine.Pin(i2c.sda)}
+        pins = {"scl": machine.Pin(i2c.scl), "sda": machine.Pin(i2c.sda)} if target_pins else {}
         if mem is None:
             return machine.I2CTarget(i2c.bus, cfg.address, **pins)
         return machine.I2CTarget(i2c.bus, cfg.address, mem=mem, mem_addrsize=MEM_ADDRSIZE, **pins)
@@ -107,8 +116,7 @@ def join_bus(machine, core, cfg, log):
     # The legacy adapter sets the RX FIFO threshold and the RX_DONE mask in the target's I2C block.
     block = 0
     if _on_rp2040(machine):
-        from .pico import i2c_registers
-        block = i2c_registers(i2c.bus)
+        block = board_module("pico").i2c_registers(i2c.bus)
 
     def legacy_adapter(target):
         return I2CTargetAdapter(core, target, i2c.whole_reply_writes, probe, block)
@@ -122,11 +130,11 @@ def join_bus(machine, core, cfg, log):
         return None
 
 
-def boot(machine, config_path=CONFIG_FILE):
+def boot(machine, config_path=CONFIG_FILE, cfg=None):
     """`build`, then the boot task run to its end (the original's setup()); returns (core, cfg, log)."""
     import time
 
-    core, cfg, log = build(machine, config_path)
+    core, cfg, log = build(machine, config_path, cfg=cfg)
     while not core.ready:
         core.service()
         time.sleep_ms(1)
@@ -134,15 +142,24 @@ def boot(machine, config_path=CONFIG_FILE):
     return core, cfg, log
 
 
-def run(config_path=CONFIG_FILE):
+def run(config_path=CONFIG_FILE, cfg=None, target_pins=True, console=True):
+    """The joint's life: boot, join the bus, the 1 kHz main loop. A board without a filesystem
+    passes its configuration as `cfg` and, with fixed bus pins, target_pins=False; one without
+    room for the debug console, console=False (the log then prints to the REPL's serial port)."""
     import machine
     import time
 
-    core, cfg, log = boot(machine, config_path)
-    switch = join_bus(machine, core, cfg, log)
-    stdio = UsbStdio()
-    log.set_writer(stdio.write)
-    debug = DebugConsole(core, stdio.read, stdio.write)
+    core, cfg, log = boot(machine, config_path, cfg)
+    switch = join_bus(machine, core, cfg, log, target_pins)
+    debug = None
+    if console:
+        console = board_module("console.debug")
+        stdio = console.UsbStdio()
+        log.set_writer(stdio.write)
+        debug = console.DebugConsole(core, stdio.read, stdio.write)
+    import gc
+    gc.collect()
+    log.info("booted: %d bytes of heap free" % gc.mem_free())  # the RAM left for the console and v2
     next_us = time.ticks_us()
     turn = 0
     try:
@@ -153,7 +170,7 @@ def run(config_path=CONFIG_FILE):
             # PROTOCOL request, which may wait a few milliseconds.
             if switch is not None and (turn == 0 or switch.link is not None):
                 switch.service()
-            if turn == 0:  # a person's console: every few milliseconds is quick enough
+            if turn == 0 and debug is not None:  # a person's console: every few milliseconds is quick enough
                 try:
                     debug.poll()
                 except Exception as exc:  # the console must never end the control loop

@@ -4,7 +4,7 @@ from joint.config import schema as config
 from joint.spec import protocol
 from joint.core.controller import JointController
 from joint.motion.fixed import ANGLE_Q, RPM_Q, to_q
-from joint.motion.hal import MotorHAL
+from joint.motion.hal import MAGNET_OK, MotorHAL
 from joint.links.i2c_target import I2CTargetAdapter
 from joint.console.log import Logger
 from joint.sim.clock import VirtualClock
@@ -25,6 +25,7 @@ class RecordingMotor(MotorHAL):
         self.error = 0.0
         self.reached = True
         self.field = 0  # field_position(), usteps
+        self.magnet_health = MAGNET_OK  # magnet(): what the encoder's status says
         self.wiring = 0  # +1/-1: relative moves change `angle` like a (mis)wired motor; 0: it never moves
 
     def _record(self, name, *args):
@@ -106,6 +107,10 @@ class RecordingMotor(MotorHAL):
 
     def field_position(self):
         return self.field
+
+    def magnet(self):
+        self._record("magnet")
+        return self.magnet_health
 
 
 class Rig:

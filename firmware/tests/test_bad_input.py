@@ -93,3 +93,11 @@ def test_error_flag_only_marks_the_rejected_frame():
     assert rig.xfer(bytes([P.SETCURRENT, 200]), 1)[0] & P.FLAG_ERROR
     assert not rig.command("SETCURRENT", 30) & P.FLAG_ERROR
     assert rig.read("PING")[1] == 0x04
+
+
+def test_angles_beyond_what_the_joint_carries_are_errors_not_clamped_moves():
+    rig = _enabled_rig()
+    for name in ("MOVEANGLE", "MOVETOANGLE"):
+        for value in (262144.0, -262144.5, 1e6, -1e6):
+            _assert_rejected(rig, bytes([P.register(name).addr]) + struct.pack("<f", value), "%s %g" % (name, value))
+            assert rig.read("LASTERROR")[0][0] == P.REJECT_VALUE

@@ -7,7 +7,10 @@ configs (the tracking stall detector, the homing monitor, the deadman in every m
 stop) and the original stall detector, the schema default, with its console trace on too.
 """
 
+import gc
+
 from joint.config import schema as config
+from joint.motion.hal import MAGNET_OK
 from joint.spec import protocol as P
 from joint.console.debug import DebugConsole
 from pico_rig import MICROPYTHON, PicoJoint
@@ -77,6 +80,20 @@ def test_homing_allocates_nothing():
     j.tick(600)  # past the settle time: driving toward the stop
     _zero(j, "homing")
     assert j.core.task_name == "HOME"
+
+
+def test_reading_the_magnet_status_allocates_nothing():
+    """A HOME's first check (MotorHAL.magnet, the AS5600's STATUS) runs in the main loop's task."""
+    j = _moving()
+    j.motor.magnet()  # warm: the first call may intern
+    if MICROPYTHON:
+        gc.collect()
+        before = gc.mem_alloc()
+        health = j.motor.magnet()
+        assert gc.mem_alloc() - before == 0, gc.mem_alloc() - before
+    else:
+        health = j.motor.magnet()
+    assert health == MAGNET_OK
 
 
 def test_deadman_watching_and_the_idle_console_allocate_nothing():
@@ -171,6 +188,10 @@ def test_the_deadman_in_every_mode_allocates_nothing():
     j.tick(500, poll_every=10)
     _zero(j, "velocity with the watchdog")
     assert j.core.qd_set != 0 and not j.core.flags & P.FLAG_NOTENABLED
+    j.command("STOP", 0)
+    j.tick(1000, poll_every=10)  # the ramp down from 60 rpm, with the host watching
+    _zero(j, "holding still with the watchdog, the host quiet", poll_every=0)
+    assert not j.core.flags & P.FLAG_NOTENABLED, "holding still is not motion"
 
 
 def test_the_deadman_quick_stop_allocates_nothing_after_its_decision():

@@ -173,15 +173,18 @@ def test_stop_is_never_refused_even_with_a_full_queue():
 
 def test_irq_counters_stay_small_ints_on_32_bit_ports():
     import joint.core.controller as core
+    import joint.core.irq as irq
     # A hard IRQ computes counter + 1 before masking: it must not reach 2**30 (a long int there).
     assert core.COUNTER_MASK + 1 <= 2 ** 30 - 1
     assert core.COUNTER_MASK % 16 == 15, "slot = counter % 16 must survive the wrap"
     rig = Rig()
-    rig.core.transactions = rig.core._q_in = rig.core._q_out = core.COUNTER_MASK
+    ftab = rig.core._ftab
+    rig.core.transactions = core.COUNTER_MASK
+    ftab[irq.FTAB_Q_IN] = ftab[irq.FTAB_Q_OUT] = 0xFF  # the queue's counters are bytes
     rig.command("SETCURRENT", 30)
-    assert rig.core.transactions == 0 and rig.core._q_in == 0, "one transaction, wrapped"
+    assert rig.core.transactions == 0 and ftab[irq.FTAB_Q_IN] == 0, "one transaction, wrapped"
     rig.run_ms(1)
-    assert ("set_current", 30) in rig.motor.calls and rig.core._q_out == 0
+    assert ("set_current", 30) in rig.motor.calls and ftab[irq.FTAB_Q_OUT] == 0
 
 
 def test_a_full_queue_rejects_with_the_error_flag_and_drops_nothing_accepted():
@@ -227,6 +230,28 @@ def test_a_second_blocking_command_is_rejected_while_one_runs():
     assert sum(1 for c in rig.motor.calls if c[0] == "set_rpm" and c[1] == 10) == 1
 
 
+def test_a_stop_while_a_blocking_command_is_applied_cancels_it():
+    """The main loop takes a HOME from the queue and starts its task; a STOP accepted in between
+    (on the chip the cancelled task before it winds down for milliseconds: driver writes, a log
+    line) cancels the new task, which belongs to the stop epoch its command was accepted in, and
+    the next HOME is accepted."""
+    rig = Rig()
+    rig.command("SETUP", 20, 20, 0, 0)
+    rig.command("HOME", 1, 10, 30, 15)
+    rig.run_ms(600)
+    rig.command("STOP", 0)
+    assert not rig.command("HOME", 1, 10, 30, 15) & P.FLAG_ERROR
+    wind_down = rig.core._finish_cancelled_task
+
+    def stop_meanwhile():
+        wind_down()
+        assert not rig.command("STOP", 0) & P.FLAG_ERROR
+    rig.core._finish_cancelled_task = stop_meanwhile
+    rig.run_ms(1)
+    assert rig.core.task_name == "HOME" and rig.core._cancelled(), "started, and cancelled by the STOP"
+    assert not rig.command("HOME", 1, 10, 30, 15) & P.FLAG_ERROR, "no blocking command is live"
+
+
 def _boundary_payloads(reg):
     """Payloads of `reg` at and just past every field's limits, non-finite floats, wrong lengths."""
     per_field = []
@@ -260,10 +285,10 @@ def test_the_irq_frame_checks_give_the_spec_verdict_for_every_register():
         for payload in _boundary_payloads(reg) if reg is not None else (b"\x00",):
             if not payload and reg.readable:
                 continue  # a register selected for reading
-            before = rig.core.rejects
+            before = rig.core.reject_count()
             flags = rig.xfer(bytes([addr]) + payload, 1)[0]
             expected = P.REJECT_UNKNOWN_REGISTER if reg is None else reg.check_write(payload, 0, len(payload))
-            reason = rig.core.cached_reply(P.LASTERROR)[0] if rig.core.rejects != before else P.REJECT_NONE
+            reason = rig.core.cached_reply(P.LASTERROR)[0] if rig.core.reject_count() != before else P.REJECT_NONE
             if expected != P.REJECT_NONE:
                 assert reason == expected and flags & P.FLAG_ERROR, (addr, payload, reason, expected)
             else:
@@ -296,7 +321,20 @@ def test_the_irq_code_reads_the_spec_and_the_frame_table_where_they_are():
     assert (irq._DISABLED, irq.FTAB_DISABLED, irq._STOPS, irq._HALTS, irq.FTAB_HALTS, irq._MOTION, irq._HOMING) == (
         T.DISABLED, T.DISABLED, T.STOPS, T.HALTS, T.HALTS, T.MOTION, T.HOMING)
     assert (irq._CHECK_BYTES, irq._CHECK_F32, irq._CHECK_U16) == (T.CHECK_BYTES, T.CHECK_F32, T.CHECK_U16)
-    assert T.SIZE == T.HALTS + 1 and T.REGISTERS * 4 <= T.HI - T.LO and T.LIMITS + T.REGISTERS * 8 <= T.DISABLED
+    assert (irq._BLOCK_IN, irq._BLOCK_OUT, irq.FTAB_BLOCK_OUT, irq._BLOCK_STOPS, irq._TASK, irq.FTAB_TASK,
+            irq._TASK_STOPS, irq.FTAB_TASK_STOPS, irq._HOMING_FLOOR, irq._HOMING_FLOOR_Q) == (
+        T.BLOCK_IN, T.BLOCK_OUT, T.BLOCK_OUT, T.BLOCK_STOPS, T.TASK, T.TASK, T.TASK_STOPS, T.TASK_STOPS,
+        T.HOMING_FLOOR, T.HOMING_FLOOR_Q)
+    assert (irq._LAST_REASON, irq._LAST_REGISTER, irq._REJECTS, irq.FTAB_REJECTS) == (
+        T.LASTERROR_WIRE, T.LASTERROR_WIRE + 1, T.LASTERROR_WIRE + 2, T.LASTERROR_WIRE + 2)
+    assert T.BLOCK_IN == T.HALTS + 1 and T.HOMING_FLOOR == T.TASK_STOPS + 1
+    assert T.HOMING_FLOOR_Q == T.HOMING_FLOOR + 2 and T.LASTERROR_WIRE == T.HOMING_FLOOR_Q + 2
+    assert T.Q_IN == T.LASTERROR_WIRE + P.register("LASTERROR").rsize + 1
+    assert (irq._Q_IN, irq.FTAB_Q_IN, irq._Q_OUT, irq.FTAB_Q_OUT, irq._REARMS, irq.FTAB_REARMS) == (
+        T.Q_IN, T.Q_IN, T.Q_OUT, T.Q_OUT, T.REARMS, T.REARMS)
+    assert T.Q_OUT == T.Q_IN + 1 and T.REARMS == T.Q_OUT + 1 and T.SIZE == T.REARMS + 1
+    assert 256 % irq.QUEUE_SLOTS == 0, "slot = byte counter % slots survives the wrap"
+    assert T.REGISTERS * 4 <= T.HI - T.LO and T.LIMITS + T.REGISTERS * 8 <= T.DISABLED
 
 
 class Rp2Events:
@@ -350,7 +388,7 @@ def test_a_command_the_rp2_driver_ends_early_is_kept_whole():
     setup = bytearray([P.SETUP]) + P.register("SETUP").encode(20, 20, 0, 0)
     rig.core.on_frame(setup, len(setup))
     rig.run_ms(1)
-    rejects = rig.core.rejects
+    rejects = rig.core.reject_count()
     payload = P.register("SETRPM").encode(12.5)
     target.fire(WQ, bytes([P.SETRPM]))
     target.fire(E_W)  # the late STOP of the transaction before
@@ -359,9 +397,67 @@ def test_a_command_the_rp2_driver_ends_early_is_kept_whole():
     target.fire(RQ)
     target.fire(RQ)
     target.fire(E_R)
-    assert rig.core.rejects == rejects and not target.sent[0] & P.FLAG_ERROR, target.sent
+    assert rig.core.reject_count() == rejects and not target.sent[0] & P.FLAG_ERROR, target.sent
     rig.run_ms(1)
     assert ("set_rpm", 12.5) in rig.motor.calls
+
+
+class Rp2Registers:
+    """The RP2040 I2C block's registers as `ptr32(address)` sees them (CPython: viper takes an
+    address there, the shim a buffer)."""
+
+    def __init__(self, ptr32):
+        self.words = {}
+        self._ptr32 = ptr32
+
+    def __call__(self, obj):
+        if not isinstance(obj, int):
+            return self._ptr32(obj)
+        words = self.words
+
+        class Word:
+            def __getitem__(self, i):
+                return words.get(obj, 0)
+
+            def __setitem__(self, i, value):
+                words[obj] = value
+        return Word()
+
+
+def test_a_write_request_with_nothing_left_leaves_the_rx_threshold_alone():
+    """rp2 handles a repeated START before the RX_FULL of the same interrupt: END_WRITE takes the
+    command's last bytes and the WRITE_REQ after it finds none. The RX FIFO threshold stays the
+    driver's, or the next read's register byte would raise no RX_FULL and the read would get the
+    reply selected before."""
+    if MICROPYTHON:
+        return  # viper writes the address itself there; the chip suite runs this event order
+    import joint.links.i2c_target as adapter_module
+    base = 0x40044000  # I2C0
+    rig = Rig()
+    rig.command("SETUP", 20, 20, 0, 0)
+    rig.run_ms(1)
+    registers = Rp2Registers(adapter_module.ptr32)
+    adapter_module.ptr32 = registers
+    try:
+        rig.adapter.deinit()
+        target = Rp2Events()
+        I2CTargetAdapter(rig.core, target, True, lambda: target.active, base)
+        rx_tl = base + 0x38
+        target.fire(WQ, bytes([P.SETRPM]))
+        assert registers.words[rx_tl] == 3, "RX_FULL again when the frame is whole"
+        target.fire(E_W, P.register("SETRPM").encode(12.5))  # the repeated START, the rest with it
+        assert registers.words[rx_tl] == 0
+        target.fire(WQ)  # the same snapshot's RX_FULL
+        assert registers.words[rx_tl] == 0, "the driver's threshold: RX_FULL with the next byte"
+        target.fire(RQ)
+        target.fire(E_R)
+        assert not target.sent[0] & P.FLAG_ERROR
+        target.fire(WQ, bytes([P.PING]))
+        target.fire(E_W)
+        target.fire(RQ)
+        assert bytes(target.sent[1:3]) == b"O" + bytes([rig.core.flags]), target.sent
+    finally:
+        adapter_module.ptr32 = registers._ptr32
 
 
 def test_a_short_command_is_rejected_at_the_read_or_at_stop():
@@ -375,9 +471,9 @@ def test_a_short_command_is_rejected_at_the_read_or_at_stop():
     target.fire(E_R)
     target.active = False
     target.fire(WQ, bytes([P.SETRPM]))
-    before = rig.core.rejects
+    before = rig.core.reject_count()
     target.fire(E_W)  # STOP, bus idle: judged at once
-    assert rig.core.rejects == before + 1
+    assert rig.core.reject_count() == before + 1
 
 
 def test_the_main_loop_reads_the_queue_and_the_spec_where_they_are():
@@ -392,5 +488,7 @@ def test_the_main_loop_reads_the_queue_and_the_spec_where_they_are():
         P.ANGLEMOVED, P.GETENCODERRPM, P.GETDRIVERRPM, P.GETPIDERROR, P.LASTERROR)
     assert (loop._SLOT_MASK, loop._SLOT, loop._SLOT_FLAGS, loop._SLOT_HALTS, loop._SLOT_STOPS) == (
         irq.QUEUE_SLOTS - 1, irq.SLOT, irq.SLOT_FLAGS, irq.SLOT_HALTS, irq.SLOT_STOPS)
-    assert (loop._MOTION_BLOCKED, loop._COUNTER_MASK) == (irq.MOTION_BLOCKED, irq.COUNTER_MASK)
+    assert loop._MOTION_BLOCKED == irq.MOTION_BLOCKED
+    assert (loop._FTAB_BLOCK_OUT, loop._FTAB_REJECTS, loop._FTAB_Q_IN, loop._FTAB_Q_OUT) == (
+        irq.FTAB_BLOCK_OUT, irq.FTAB_REJECTS, irq.FTAB_Q_IN, irq.FTAB_Q_OUT)
     assert irq.QUEUE_SLOTS & (irq.QUEUE_SLOTS - 1) == 0, "the slot mask needs a power of two"

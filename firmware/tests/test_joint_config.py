@@ -47,7 +47,7 @@ def test_each_kind_of_mistake_gets_its_own_message():
         ({"joint": "J1"}, "j.json: missing required key address"),
         (dict(base, stall={"window_low": 500}), "j.json: stall.window_low (500.0) must not exceed stall.window_high (450.0)"),
         (dict(base, boot=3), "j.json: boot must be an object"),
-        (dict(base, motor={"backend": "stepper9000"}), "j.json: motor.backend = 'stepper9000' is not one of pico, sim"),
+        (dict(base, motor={"backend": "stepper9000"}), "j.json: motor.backend = 'stepper9000' is not one of pico, s32, sim"),
     )
     for data, message in cases:
         errors = _errors(data)

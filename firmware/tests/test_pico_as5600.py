@@ -6,6 +6,7 @@ port (mprun.py); the fakes are pico_fakes.py's.
 
 from joint.pico import as5600 as enc
 from joint.pico.as5600 import AS5600
+from joint.motion.hal import MAGNET_MISSING, MAGNET_OK, MAGNET_STRONG, MAGNET_WEAK
 from pico_fakes import FakeAS5600Bus, FakeI2CRegisters, MICROPYTHON
 
 
@@ -22,6 +23,8 @@ def test_as5600_raw_angle_and_magnet_status():
     assert enc.decode_status(0x00) == (False, False, False)
     bus.status = 0x18
     assert enc.decode_status(sensor.status()) == (False, True, True)
+    assert [enc.magnet_health(s) for s in (0x20, 0x00, 0x30, 0x28, 0x18)] == [
+        MAGNET_OK, MAGNET_MISSING, MAGNET_WEAK, MAGNET_STRONG, MAGNET_MISSING]
 
 
 def test_as5600_unwrap_across_zero_both_directions():

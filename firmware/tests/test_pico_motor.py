@@ -9,6 +9,7 @@ from joint.pico import tmc2209 as tmc
 from joint.pico.motor_config import DEFAULTS, validate_motor_config
 from joint.pico.tmc2209 import TMC2209, TMCError
 from joint.motion.fixed import ANGLE_Q, RPM_Q, STEPS_Q, to_q
+from joint.motion.hal import MAGNET_MISSING, MAGNET_OK, MAGNET_STRONG, MAGNET_WEAK
 from pico_fakes import Bench, FS, MICROPYTHON, RPM, deg, raises
 
 
@@ -315,6 +316,22 @@ def test_diagnostics_report_driver_and_magnet():
     assert d["stst"] and d["cs_actual"] == 20 and d["otpw"] and not d["ot"]
     assert d["magnet_detected"] and d["magnet_too_weak"] and not d["magnet_too_strong"]
     assert d["uart_faults"] == 0 and d["encoder_errors"] == 0
+
+
+def test_magnet_health_comes_from_the_as5600_status_bits():
+    b = Bench().begin()
+    for status, health in ((0x20, MAGNET_OK), (0x00, MAGNET_MISSING), (0x30, MAGNET_WEAK),
+                           (0x28, MAGNET_STRONG), (0x10, MAGNET_MISSING)):
+        b.i2c.status = status
+        assert b.motor.magnet() == health, (status, b.motor.magnet())
+    b.i2c.fail = True  # a sensor that does not answer cannot vouch for its magnet
+    assert b.motor.magnet() == MAGNET_MISSING
+    b.i2c.fail = False
+    b.i2c.status = 0x20
+    start = deg(b.motor)
+    b.rotor += 1250  # 100 counts
+    b.tick(5)  # sampling resumes after the status read moved the sensor's address pointer
+    assert abs(deg(b.motor) - start - 8.789) < 0.01, deg(b.motor) - start
 
 
 def test_uart_fault_after_begin_is_recorded_not_raised():

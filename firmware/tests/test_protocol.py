@@ -174,3 +174,22 @@ def test_spec_hash_changes_when_any_register_definition_changes():
         digest = P.spec_hash(table)
         assert digest not in seen, variant.name
         seen.add(digest)
+
+
+def test_angles_the_joint_cannot_carry_exactly_are_refused_not_clamped():
+    """MOVEANGLE / MOVETOANGLE travel as Q12 degrees: beyond the spec's limit a frame is an ERROR
+    (issue 20: +-262,144 degrees and more used to be accepted and clamped)."""
+    for name in ("MOVEANGLE", "MOVETOANGLE"):
+        field = P.register(name).write[0]
+        assert field.hi * 2 * (1 << 12) < (1 << 30), "the limit plus a homing offset of as much fits Q12"
+        for value, ok in ((field.hi, True), (-field.hi, True), (262144.0, False), (-1e6, False)):
+            buf = bytearray(struct.pack("<f", value))
+            assert field.check(buf, 0) == ok, (name, value)
+
+
+def test_the_bitwise_crc32_is_zlibs():
+    # The S32 image has no binascii.crc32: protocol.crc32_bitwise computes the spec hash there.
+    assert P.crc32_bitwise(b"123456789") == 0xCBF43926  # the CRC-32 check value
+    assert P.crc32_bitwise(b"") == 0
+    data = bytes(range(256)) * 3
+    assert P.crc32_bitwise(data) == P.crc32(data) & 0xFFFFFFFF, "the port's own crc32 where it has one"

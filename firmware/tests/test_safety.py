@@ -2,6 +2,7 @@
 
 from joint.spec import protocol as P
 from joint.detect.tracking import TrackingDetector
+from joint.motion.hal import MAGNET_MISSING, MAGNET_OK, MAGNET_STRONG, MAGNET_WEAK
 from harness import Rig
 
 NOTENABLED, BUSY, NOTHOMED = P.FLAG_NOTENABLED, P.FLAG_BUSY, P.FLAG_NOTHOMED
@@ -65,6 +66,73 @@ def test_every_motion_state_stops_on_host_silence_whatever_the_flags_say():
             assert rig.motor.calls[stop - 2:stop] == [("set_max_acceleration", decel),
                                                       ("set_max_deceleration", decel)], \
                 "the quick stop, not the host's slow ramp"
+
+
+def _moved_then_holding(rig):
+    """A position move under the watchdog, polled, that arrives: the joint then holds."""
+    rig.command("SETUP", 20, 20, 0, 0)
+    rig.command("WATCHDOG", 50)
+    rig.motor.reached = False
+    rig.motor.ramp_rpm = 60.0
+    rig.command("MOVETOANGLE", 360.0)
+    for _ in range(20):
+        rig.run_ms(10)
+        rig.read("PING")
+    rig.motor.reached = True
+    rig.motor.ramp_rpm = 0.0
+    rig.run_ms(5)
+
+
+def test_a_quiet_host_never_disables_a_joint_that_holds_still():
+    rig = Rig()
+    _moved_then_holding(rig)
+    for k in range(500):  # 5 s without a host; the closed loop corrects now and then (issue 25)
+        rig.motor.ramp_rpm = 0.4 if k % 50 < 3 else 0.0
+        rig.run_ms(10)
+    assert not rig.core.flags & NOTENABLED
+    assert not any("deadman" in line for line in rig.lines)
+
+
+def test_the_ramp_after_commanded_motion_is_still_guarded():
+    rig = Rig()
+    rig.command("SETUP", 20, 20, 0, 0)
+    rig.command("WATCHDOG", 50)
+    rig.motor.ramp_rpm = 60.0
+    rig.command("SETRPM", 60.0)
+    for _ in range(20):
+        rig.run_ms(10)
+        rig.read("PING")
+    rig.command("SETRPM", 0.0)  # the host's slow ramp down, then silence while it still turns
+    rig.motor.calls = []
+    rig.run_ms(52)
+    assert ("stop", False) in rig.motor.calls and rig.core.flags & NOTENABLED
+
+
+def test_motion_after_holding_is_guarded_again():
+    rig = Rig()
+    _moved_then_holding(rig)
+    rig.run_ms(200)
+    rig.motor.reached = False
+    rig.motor.ramp_rpm = 60.0
+    rig.command("MOVETOANGLE", 3600.0)
+    rig.motor.calls = []
+    rig.run_ms(52)
+    assert ("stop", False) in rig.motor.calls and rig.core.flags & NOTENABLED
+
+
+def test_a_move_hunting_around_its_target_is_holding_not_moving():
+    rig = Rig()
+    rig.command("SETUP", 20, 20, 0, 0)
+    rig.command("WATCHDOG", 50)
+    rig.motor.reached = False  # the closed loop keeps the ramp from settling ...
+    rig.motor.ramp_rpm = 4.0
+    rig.command("MOVETOANGLE", 360.0)
+    rig.motor.angle = 352.0  # ... within a few degrees of the target
+    rig.run_ms(500)
+    assert rig.core.positioning and not rig.core.flags & NOTENABLED
+    rig.motor.angle = 300.0  # pushed away from it: that is motion again
+    rig.run_ms(52)
+    assert rig.core.flags & NOTENABLED
 
 
 def test_a_fresh_joint_keeps_the_original_deadman_velocity_only():
@@ -293,3 +361,87 @@ def test_motion_commanded_after_a_deadman_stop_turns_the_joint_again():
     rig.command("SETRPM", 30.0)
     rig.run_ms(2)
     assert any(c[0] == "set_rpm" and c[1] > 0 for c in rig.motor.calls), rig.motor.calls
+
+
+def _homing_started(rig, sensitivity=30):
+    rig.command("SETUP", 20, 20, 0, 0)
+    rig.command("HOME", 1, 10, sensitivity, 15)
+    rig.run_ms(600)  # the settle: the motor holds, the encoder is read
+
+
+def _outcome(rig):
+    return rig.read("HOMINGRESULT")[0][0]
+
+
+def test_a_homing_whose_encoder_falls_back_never_homes():
+    """An overhauling load: the encoder runs away backwards while the field drives forward, a lag
+    the tracking evidence alone would take for the stop (issue 20)."""
+    rig = Rig()
+    rig.core.homing._max_travel = 51200 * 4
+    _homing_started(rig)
+    for _ in range(400):
+        rig.motor.field += 50
+        rig.motor.angle -= 1000 / 142.2222
+        rig.motor.error = 200
+        rig.run_ms(5)
+        if not rig.core.flags & BUSY:
+            break
+    assert not rig.core.flags & BUSY and rig.core.flags & NOTHOMED
+    assert ("set_home",) not in rig.motor.calls
+    assert "travel limit" in P.HOMING_OUTCOMES[_outcome(rig)]
+
+
+def test_a_homing_pushes_at_most_its_push_time_when_the_sensitivity_is_never_reached():
+    rig = Rig()
+    _homing_started(rig, sensitivity=255)
+    start = rig.clock.ticks_ms()
+    while rig.core.flags & BUSY and rig.clock.ticks_diff(rig.clock.ticks_ms(), start) < 5000:
+        rig.motor.field += 10  # the field runs on, the encoder stays at the stop
+        rig.motor.error = 40
+        rig.run_ms(1)
+    pushed = rig.clock.ticks_diff(rig.clock.ticks_ms(), start)
+    assert rig.core.flags & NOTHOMED and not rig.core.flags & BUSY and pushed < 2000, pushed
+    assert "sensitivity was not reached" in P.HOMING_OUTCOMES[_outcome(rig)]
+
+
+def test_a_homing_with_a_noisy_encoder_at_rest_is_refused():
+    rig = Rig()
+    rig.command("SETUP", 20, 20, 0, 0)
+    rig.command("HOME", 1, 10, 30, 15)
+    for k in range(600):  # a weak magnet: the reading jumps by 1.5 degrees at rest
+        rig.motor.angle = 1.5 if k % 2 else 0.0
+        rig.run_ms(1)
+    assert not rig.core.flags & BUSY and rig.core.flags & NOTHOMED
+    assert "magnet" in P.HOMING_OUTCOMES[_outcome(rig)]
+    assert "set_rpm" not in rig.motor.names()
+
+
+def test_a_homing_with_a_magnet_the_encoder_reports_unfit_is_refused_before_it_moves():
+    """The encoder's own status (the AS5600's MD/ML/MH): missing, too weak, too strong each end the
+    HOME at once, NOTHOMED, with a console line and HOMINGRESULT naming the magnet."""
+    for health, word in ((MAGNET_MISSING, "no magnet"), (MAGNET_WEAK, "too weak"),
+                         (MAGNET_STRONG, "too strong")):
+        rig = Rig()
+        rig.motor.magnet_health = health
+        rig.command("SETUP", 20, 20, 0, 0)
+        rig.command("HOME", 1, 10, 30, 15)
+        rig.run_ms(5)
+        assert not rig.core.flags & BUSY and rig.core.flags & NOTHOMED
+        assert word in P.HOMING_OUTCOMES[_outcome(rig)] and "magnet" in P.HOMING_OUTCOMES[_outcome(rig)]
+        assert "set_rpm" not in rig.motor.names() and "set_home" not in rig.motor.names()
+        assert any(word in line for line in rig.lines), rig.lines
+        rig.motor.magnet_health = MAGNET_OK  # the magnet fixed: the next HOME is not refused by the old word
+        rig.command("HOME", 1, 10, 30, 15)
+        rig.run_ms(600)
+        assert rig.core.flags & BUSY and "set_rpm" in rig.motor.names(), rig.lines
+
+
+def test_a_homing_whose_link_is_still_falling_is_refused():
+    rig = Rig()
+    rig.command("SETUP", 20, 20, 0, 0)
+    rig.command("HOME", 1, 10, 30, 15)
+    for _ in range(600):
+        rig.motor.angle -= 0.5  # 500 motor deg/s against the homing direction
+        rig.run_ms(1)
+    assert not rig.core.flags & BUSY and rig.core.flags & NOTHOMED
+    assert "did not come to rest" in P.HOMING_OUTCOMES[_outcome(rig)]

@@ -28,7 +28,7 @@ def _run(clock, m, seconds, step_us=1000, each=None):
 
 
 def _rpm(m):
-    return m._W * 60.0 / 51200.0
+    return m._rotor_speed * 60.0 / 51200.0
 
 
 def test_end_stops_are_stable_at_any_stiffness_and_damping():
@@ -63,7 +63,7 @@ def test_a_link_hits_its_stop_through_the_transmission_without_bouncing_off():
                 seen = [0.0]
 
                 def watch():
-                    seen[0] = min(seen[0], m._V * 60.0 / 51200.0)
+                    seen[0] = min(seen[0], m._load_speed * 60.0 / 51200.0)
                 _run(clock, m, 0.8, 2000, each=watch)
                 back.append(seen[0])
                 # Static penetration: at most the motor's torque over the stop's stiffness.

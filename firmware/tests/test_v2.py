@@ -1,17 +1,12 @@
 """Protocol v2 on the joint: the memory map served by the mem-mode target, the switch between the
 two maps, every rejection path, whole-block reads, and an allocation-free main loop."""
 
-import struct
-
 from joint.spec import protocol as P, protocol_v2 as V
 from joint.sim.i2c_target import FakeI2CTarget, heap_lock, heap_unlock
-from joint.links.memmap_v2 import _mailbox_crc, _state_crc, f32_to_fixed
+from joint.motion.fixed import f32_to_q, rescale, store_q
+from joint.links.memmap_v2 import _mailbox_crc, _state_crc
 
 from v2rig import V2Rig
-
-
-def _f32(value):
-    return struct.pack("<f", value)
 
 
 def test_crc8_smbus_matches_the_catalogue_and_the_smbus_pec_vectors():
@@ -38,15 +33,24 @@ def test_the_layout_fits_one_combined_transaction_of_156_bit_times():
     assert 4 * 3 * P.wire_bits(5, 1) == 900  # legacy: a command and two register reads per joint
 
 
-def test_float32_bits_convert_to_fixed_point_without_floats():
-    for value in (0.0, 1.0, -1.0, 12.5, -0.0078125, 359.99, 30600.0, -12211.3, 0.004, 1e-30):
-        expected = int(abs(value) * 64 + 0.5) * (-1 if value < 0 else 1)  # half away from zero
-        assert f32_to_fixed(_f32(value), 0, 6, V.POSITION_MAX) == expected, value
-    assert f32_to_fixed(_f32(1e9), 0, 6, V.POSITION_MAX) == V.POSITION_MAX
-    assert f32_to_fixed(_f32(-1e9), 0, 6, V.POSITION_MAX) == -V.POSITION_MAX
-    assert f32_to_fixed(_f32(5000.0), 0, 3, V.VELOCITY_MAX) == V.VELOCITY_MAX
-    assert f32_to_fixed(_f32(float("inf")), 0, 3, V.VELOCITY_MAX) == V.VELOCITY_MAX
-    assert abs(f32_to_fixed(_f32(float("nan")), 0, 3, V.VELOCITY_MAX)) == V.VELOCITY_MAX
+def test_the_state_block_rescales_the_cached_integers_as_the_float32_caches_did():
+    """Position and velocity come from the integers behind the ANGLEMOVED / GETENCODERRPM caches
+    (Q12 degrees, Q16 rpm), rounded half away from zero and saturated: the same numbers the
+    float32 caches gave wherever float32 holds the integer exactly (|value| < 2**24)."""
+    def via_float32(value, q, shift, limit):
+        cache = bytearray(4)
+        store_q(cache, value, q)
+        return max(-limit, min(limit, f32_to_q(cache, 0, q - shift)))
+    values = [0, 1, -1, 31, 32, 33, -32, -33, 95, 96, -96, 4096 * 359, -12211 * 4096 - 2048,
+              (1 << 24) - 1, -(1 << 24) + 1]
+    for value in values:
+        expected = (abs(value) * 2 + 64) // 128 * (-1 if value < 0 else 1)
+        assert rescale(value, 6, V.POSITION_MAX) == expected == via_float32(value, 12, 6, V.POSITION_MAX), value
+        assert rescale(value, 13, V.VELOCITY_MAX) == via_float32(value, 16, 13, V.VELOCITY_MAX), value
+    assert rescale((1 << 30) - 1, 6, V.POSITION_MAX) == V.POSITION_MAX
+    assert rescale(-(1 << 30) + 1, 6, V.POSITION_MAX) == -V.POSITION_MAX
+    assert rescale(5000 << 16, 13, V.VELOCITY_MAX) == V.VELOCITY_MAX
+    assert rescale(-5000 << 16, 13, V.VELOCITY_MAX) == -V.VELOCITY_MAX
 
 
 def test_a_fresh_joint_serves_legacy_and_switches_to_v2_and_back():
@@ -280,3 +284,47 @@ def test_memory_mode_follows_micropython():
     assert events == [(16, 3), (32, 5)], "no END_WRITE for a write that only set the address"
     flat = FakeI2CTarget(0x42, mem=bytearray(range(15)), mem_addrsize=0)
     assert flat.transfer(bytes(7), 8) == bytes(range(7, 15)), "addrsize 0: write at 0, read after it"
+
+
+def _mixed_with_a_valid_crc(rig, first):
+    """A 3-byte write that, landing on `first` still in the mailbox, leaves a MOVESTEPS frame
+    whose CRC-8 (first's, unchanged) is valid: what two writes in one loop pass could apply."""
+    for b1 in range(256):
+        for b2 in range(256):
+            mixed = bytes([P.MOVESTEPS, b1, b2]) + first[3:]
+            if V.mailbox_crc(mixed, 0, rig.address) == mixed[V.M_CRC]:
+                return mixed[:3]
+    raise AssertionError("no mix with a valid CRC")
+
+
+def test_two_writes_in_one_loop_pass_are_never_applied_as_one_frame():
+    rig = V2Rig()
+    rig.to_v2()
+    rig.command("SETUP", 60, 30, 0, 0)
+    rig.motor.calls = []
+    first = rig.frame("MOVESTEPS", 100)
+    rig.xfer(first, 0)
+    rig.xfer(_mixed_with_a_valid_crc(rig, first), 0)  # before the main loop took the first
+    rig.tick()
+    flags, verdict, _, _, _ = V.decode_state(rig.address, rig.xfer(rig.frame(seq=rig.link.ack), V.STATE_SIZE))
+    rig.tick()
+    assert verdict == V.REASON_FRAME and rig.motor.calls == [] and rig.link.frame_errors == 1
+    rig.exchange(first)  # the host's retry: one write, applied once
+    rig.exchange(first)
+    assert rig.motor.calls == [("move_steps", 100)]
+
+
+def test_a_frame_whose_end_of_write_is_not_yet_counted_waits_for_it():
+    rig = V2Rig()
+    rig.to_v2()
+    rig.command("SETUP", 60, 30, 0, 0)
+    rig.motor.calls = []
+    handler = rig.switch.target._handler
+    rig.switch.target._handler = None  # the soft END_WRITE callback has not run yet
+    rig.xfer(rig.frame("MOVESTEPS", 7), 0)
+    rig.tick()
+    assert rig.motor.calls == [] and rig.link.frame_errors == 0
+    rig.switch.target._handler = handler
+    rig.link._count_write(rig.switch.target)  # now it runs
+    rig.run_ms(2)  # judged, then run by the core's next pass
+    assert rig.motor.calls == [("move_steps", 7)] and rig.link.frame_errors == 0

@@ -100,9 +100,12 @@ class V2Rig:
         return reply
 
     def state(self):
-        """A NONE poll; the decoded state the joint publishes after judging it."""
+        """A NONE poll; the decoded state the joint publishes after judging it. The main loop
+        runs after each write: two in one pass are refused as a framing error."""
         self.exchange(self.frame())
-        return V.decode_state(self.address, self.xfer(self.frame(), V.STATE_SIZE))
+        state = V.decode_state(self.address, self.xfer(self.frame(), V.STATE_SIZE))
+        self.tick()
+        return state
 
     def command(self, name, *values):
         """Send a command and return (verdict, flags) from the state after it was judged."""

@@ -28,6 +28,7 @@ from .config import ArmConfig, JointConfig
 from .errors import BioscaraError, CommError, IncorrectStateError, InvalidArgumentError, NotHomedError
 from .firmware.spec import protocol as P
 from .joint import BlockingCommand, Joint
+from .link import Command
 
 log = logging.getLogger("bioscara.arm")
 
@@ -77,10 +78,12 @@ def activate_joint(joint: Joint, config: JointConfig) -> None:
     joint.set_max_velocity(config.max_velocity)
 
 
-def make_joint(config: JointConfig, bus: Bus) -> Joint:
+def make_joint(config: JointConfig, bus: Bus, watch: bool = False) -> Joint:
+    """The joint of `config` on `bus`; `watch`: one that only reads (see commander.py)."""
     return Joint(config.name, config.address, bus, reduction=config.reduction, min=config.min,
                  max=config.max, max_velocity=config.max_velocity,
-                 homing_range_check=config.homing.range_tolerance if config.homing.check_range else None)
+                 homing_range_check=config.homing.range_tolerance if config.homing.check_range else None,
+                 watch=watch)
 
 
 PROTOCOLS = ("auto", "legacy", "v2")
@@ -92,18 +95,45 @@ class Arm:
     `protocol`: "auto" moves every joint whose IDENTITY says it can to protocol v2 when the arm
     is configured (one transaction per joint per cycle), "legacy" keeps the original register
     map, "v2" requires it.
+
+    `watch=True`: an arm this program only reads, beside any program that commands it (it never
+    activates, and reads without disturbing the commander: commander.py). Otherwise configuring
+    makes this program the bus's commander (ArmBusyError while another one is).
+
+    As a context manager (`with open_arm() as arm:`) it is configured on entry and, on exit
+    (an exception or Ctrl-C included), stops every joint, disables the active ones and lets go.
     """
 
-    def __init__(self, config: ArmConfig, bus: Bus, protocol: str = "auto") -> None:
+    def __init__(self, config: ArmConfig, bus: Bus, protocol: str = "auto", *, watch: bool = False) -> None:
         if protocol not in PROTOCOLS:
             raise InvalidArgumentError(f"protocol must be one of {', '.join(PROTOCOLS)}, not {protocol!r}")
         self.config = config
         self.bus = bus
         self.protocol = protocol
         self.lifecycle = Lifecycle.UNCONFIGURED
-        self.joints = {name: ArmJoint(jc, make_joint(jc, bus)) for name, jc in config.joints.items()}
+        self.watch = watch
+        self.joints = {name: ArmJoint(jc, make_joint(jc, bus, watch)) for name, jc in config.joints.items()}
         self.fault: BioscaraError | None = None
+        self.owns_bus = False  # closed with the arm (set by `open_arm` when it opened the bus)
         self._lock = threading.RLock()
+
+    def __enter__(self) -> Arm:
+        if self.lifecycle is Lifecycle.UNCONFIGURED:
+            self.configure()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        """Stop every joint, disable them if active, let go of them (and of the bus if `open_arm`
+        opened it). Every step is tried; a failure is logged, the exception in flight wins."""
+        try:
+            if self.lifecycle in (Lifecycle.INACTIVE, Lifecycle.ACTIVE) and not self.watch:
+                self._try(self.stop)
+            if self.lifecycle is Lifecycle.ACTIVE:
+                self._try(self.deactivate)
+        finally:
+            self.release()
+            if self.owns_bus:
+                self.bus.close()
 
     def __getitem__(self, name: str) -> ArmJoint:
         try:
@@ -127,7 +157,8 @@ class Arm:
                 for aj in self.joints.values():
                     aj.joint.init()
                     opened.append(aj)
-                    self._choose_protocol(aj.joint)
+                    if not self.watch:
+                        self._choose_protocol(aj.joint)
             except BioscaraError:
                 for aj in opened:
                     aj.joint.close()
@@ -172,6 +203,8 @@ class Arm:
         """Enable every joint with its limits; commands start at the measured position, velocity 0."""
         with self._lock:
             self._expect("activate", Lifecycle.INACTIVE)
+            if self.watch:
+                raise LifecycleError("this program only watches the arm: it cannot activate it")
             touched: list[ArmJoint] = []
             try:
                 for aj in self.joints.values():
@@ -290,52 +323,46 @@ class Arm:
                 raise first
 
     def cycle(self) -> None:
-        """One read/write cycle (the write only while active). A joint speaking protocol v2 gets
-        one transaction carrying its mode's setpoint and returning its state; a legacy joint two
-        register reads, then its mode's command."""
+        """One read/write cycle (the write only while active): every joint's setpoint is built
+        first (its mode's command, through the guards), then each joint gets one exchange over
+        its link carrying it (protocol v2: one transaction; legacy: the command, then two reads)."""
         with self._lock:
-            if not any(aj.joint.v2 is not None for aj in self.joints.values()):
-                self.read()
-                if self.lifecycle is Lifecycle.ACTIVE:
-                    self.write()
-                return
             self._expect("read", Lifecycle.INACTIVE, Lifecycle.ACTIVE)
             first: BioscaraError | None = None
-            for aj in self.joints.values():
+            setpoints: dict[str, Command | None] = {}
+            for name, aj in self.joints.items():
                 try:
-                    if aj.joint.v2 is not None:
-                        self._cycle_v2(aj)
-                    else:
-                        self._read_joint(aj)
-                        if self.lifecycle is Lifecycle.ACTIVE:
-                            for mode in aj.modes:
-                                self._write_mode(aj, mode)
+                    setpoints[name] = self._setpoint(aj)
+                except BioscaraError as exc:
+                    aj.state.home = 1.0 if aj.joint.is_homed() else 0.0  # the guards' fresh flags
+                    first = first or exc
+            for name, setpoint in setpoints.items():
+                try:
+                    self._exchange(self.joints[name], setpoint)
                 except BioscaraError as exc:  # the other joints' states stay fresh
                     first = first or exc
             if first is not None:
                 self._fault(first)
                 raise first
 
-    def _cycle_v2(self, aj: ArmJoint) -> None:
+    def _setpoint(self, aj: ArmJoint) -> Command | None:
+        """The command this cycle carries for `aj`: its position or velocity setpoint; homing
+        starts and stops are commands of their own, sent (and their verdicts awaited) here."""
+        if self.lifecycle is not Lifecycle.ACTIVE:
+            return None
+        setpoint = None
+        for mode in aj.modes:
+            if mode is Mode.POSITION:
+                setpoint = aj.joint.position_command(aj.command.position)
+            elif mode is Mode.VELOCITY:
+                setpoint = aj.joint.velocity_command(aj.command.velocity)
+            else:
+                self._write_mode(aj, mode)
+        return setpoint
+
+    def _exchange(self, aj: ArmJoint, setpoint: Command | None) -> None:
         joint = aj.joint
-        register: int | None = None
-        value = 0.0
-        if self.lifecycle is Lifecycle.ACTIVE:
-            try:
-                for mode in aj.modes:
-                    if mode is Mode.POSITION:
-                        register, value = P.MOVETOANGLE, joint.position_setpoint(aj.command.position)
-                    elif mode is Mode.VELOCITY:
-                        register, value = P.SETRPM, joint.velocity_setpoint(aj.command.velocity)
-                    else:
-                        self._write_mode(aj, mode)
-            except BioscaraError:
-                aj.state.home = 1.0 if joint.is_homed() else 0.0  # the guards' fresh flags
-                raise
-        if joint.v2 is None:  # it went back to legacy (reboot, silence) while guarding
-            self._read_joint(aj)
-            return
-        sample = joint.cycle_v2(register, value)
+        sample = joint.cycle(setpoint)
         if sample is not None:  # None: no fresh state this cycle, the last one stands
             aj.state.position, aj.state.velocity = sample
         aj.state.home = 1.0 if joint.is_homed() else 0.0

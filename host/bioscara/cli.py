@@ -1,8 +1,8 @@
 """The `bioscara` command line: one module per command in `bioscara.commands`.
 
 A command module may declare `USES`, the common options it takes (`bus`, `protocol`, `config`,
-`json`; all four by default): options a command would ignore are not offered. `--json` and `-v` are accepted
-before the command as well as after it. Failures the user can act on print one line and exit 2
+`json`, `take_over`; all five by default): options a command would ignore are refused. The common options and
+`-v` are accepted before the command as well as after it. Failures the user can act on print one line and exit 2
 (usage and configuration errors) or 1 (device and bus errors); nothing prints a traceback.
 """
 
@@ -11,18 +11,20 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import os
 import sys
 from collections.abc import Sequence
 
-from . import __version__
+from . import __version__, interruption
 from .arm import PROTOCOLS
 from .bus import Bus
 from .commands import COMMANDS
 from .errors import BioscaraError, ConfigError, InvalidArgumentError
 from .session import Session
 
-ALL_OPTIONS = ("bus", "protocol", "config", "json")
-USAGE, DEVICE, INTERNAL = 2, 1, 70  # exit statuses
+ALL_OPTIONS = ("bus", "protocol", "config", "json", "take_over")
+TOP_DEFAULTS = {"bus": None, "protocol": "auto", "config": None, "json": False, "take_over": False}  # what "not given" looks like
+USAGE, DEVICE, INTERNAL, BROKEN_PIPE = 2, 1, 70, 141  # exit statuses (141: 128 + SIGPIPE)
 
 
 class _Parser(argparse.ArgumentParser):
@@ -46,6 +48,10 @@ def _common(uses: Sequence[str], top: bool) -> argparse.ArgumentParser:
     if "config" in uses:
         common.add_argument("--config", metavar="FILE", help="arm configuration (TOML; default: "
                             "$XDG_CONFIG_HOME/bioscara/arm.toml if it exists, else the shipped j1-j4 configuration)")
+    if "take_over" in uses:
+        common.add_argument("--take-over", action="store_true", help="if another program commands the arm, "
+                            "stop it and command (default: refuse, naming it)",
+                            **({"default": False} if top else suppress))
     if "json" in uses:
         common.add_argument("--json", action="store_true", help="machine-readable output (JSON)",
                             **({"default": False} if top else suppress))
@@ -56,7 +62,7 @@ def _common(uses: Sequence[str], top: bool) -> argparse.ArgumentParser:
 
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="bioscara", description="Bioscara SCARA arm tools",
-                                     parents=[_common(("json",), top=True)])
+                     parents=[_common(ALL_OPTIONS, top=True)])
     parser.add_argument("--version", action="version", version=f"bioscara {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name in COMMANDS:
@@ -80,6 +86,13 @@ def _safe_streams() -> None:
                 pass
 
 
+def _quiet_stdout() -> None:
+    """Point stdout at /dev/null, so the interpreter's last flush does not fail on the closed pipe."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+    os.close(devnull)
+
+
 def main(argv: list[str] | None = None, *, bus: Bus | None = None) -> int:
     """Run one command. `bus`: use this open bus instead of the config's (embedding, tests)."""
     _safe_streams()
@@ -91,13 +104,25 @@ def main(argv: list[str] | None = None, *, bus: Bus | None = None) -> int:
     level = (logging.WARNING, logging.INFO, logging.DEBUG)[min(args.verbose, 2)]
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
     session = Session(args, bus)
+    with interruption.stop_on_signals():
+        return _run(args, session)
+
+
+def _run(args: argparse.Namespace, session: Session) -> int:
     try:
-        if args.json and "json" not in args.uses:
-            raise InvalidArgumentError(f"`bioscara {args.command}` has no --json output")
+        given = [option for option, default in TOP_DEFAULTS.items() if getattr(args, option) != default]
+        unused = [f"--{option}" for option in given if option not in args.uses]
+        if unused:
+            raise InvalidArgumentError(f"`bioscara {args.command}` takes no {' or '.join(unused)}")
         return int(args.handler(args, session) or 0)
-    except KeyboardInterrupt:
-        session.err("interrupted")
-        return 130
+    except KeyboardInterrupt as exc:  # Ctrl-C, SIGTERM, SIGHUP: a joint this command moves stops here
+        cause = exc.cause if isinstance(exc, interruption.Interrupted) else "Ctrl-C"
+        session.err(f"interrupted ({cause})")
+        interruption.stop_arms(session.arms, session.err)
+        return interruption.exit_status(exc)
+    except BrokenPipeError:  # the reader left (`| head`): nobody to tell, end quietly as `yes | head` does
+        _quiet_stdout()
+        return BROKEN_PIPE
     except (ConfigError, InvalidArgumentError) as exc:
         session.fail(exc, USAGE)
         return USAGE

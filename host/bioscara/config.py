@@ -1,7 +1,9 @@
 """Arm configuration: the TOML file that replaces the original's URDF/YAML hardware parameters.
 
-`load_config()` reads a file (or the shipped default), `parse_config()` checks an already parsed
-table. Both collect every problem before raising one `ConfigError` that lists them all, each line
+`load_config()` gives the configuration a program runs with, the same for the command line and
+the Python API: `--config`'s file, else the user's, else the shipped one, on the bus `--bus` or
+$BIOSCARA_BUS names, else the file's. `read_config()` reads one file (or the shipped default) as it
+is, `parse_config()` checks an already parsed table. Both collect every problem before raising one `ConfigError` that lists them all, each line
 naming the file, the key path and what is allowed. Joint values are in joint units: rad for revolute
 joints, m for prismatic ones.
 """
@@ -18,12 +20,13 @@ from pathlib import Path
 from typing import Any, Literal
 
 from .errors import ConfigError
+from .firmware.spec import protocol as P
 from .transmission import Transmission
+from .transports import schemes
 
 JointType = Literal["revolute", "prismatic"]
 
 JOINT_NAMES = ("j1", "j2", "j3", "j4")
-BUS_SCHEMES = ("smbus:", "blinka:", "serial:", "sim:")
 
 # Default simulated start: this far inside the end stop that homing runs into.
 _SIM_START_MARGIN = {"revolute": 0.05, "prismatic": 0.005}  # rad, m
@@ -132,8 +135,9 @@ def user_config_path() -> Path:
     return default_config_dir() / USER_CONFIG_NAME
 
 
-def resolve_config(path: str | os.PathLike[str] | None = None, bus: str | None = None) -> ArmConfig:
-    """The configuration a command runs with.
+def load_config(path: str | os.PathLike[str] | None = None, bus: str | None = None) -> ArmConfig:
+    """The configuration a program runs with (the command line's `--config` and `--bus` are
+    `path` and `bus`; a script passes nothing to get what `bioscara` commands use).
 
     The file: `path`, else the user's (`user_config_path()`) if it exists, else the shipped one.
     The bus: `bus` (--bus), else $BIOSCARA_BUS, else the file's. The shared simulated arm's idle
@@ -141,11 +145,11 @@ def resolve_config(path: str | os.PathLike[str] | None = None, bus: str | None =
     """
     if path is None and user_config_path().is_file():
         path = user_config_path()
-    config = load_config(path)
+    config = read_config(path)
     url = bus or os.environ.get(BUS_ENV, "").strip() or None
     if url is not None:
-        if not bus and not url.startswith(BUS_SCHEMES):
-            raise ConfigError(f"unknown bus {url!r} in ${BUS_ENV}; use one of {', '.join(BUS_SCHEMES)}")
+        if not bus and not url.startswith(schemes()):
+            raise ConfigError(f"unknown bus {url!r} in ${BUS_ENV}; use one of {', '.join(schemes())}")
         config = replace(config, bus=replace(config.bus, url=url, use_mock_hardware=False))
     idle = os.environ.get(IDLE_EXIT_ENV, "").strip()
     if idle:
@@ -159,8 +163,9 @@ def resolve_config(path: str | os.PathLike[str] | None = None, bus: str | None =
     return config
 
 
-def load_config(path: str | os.PathLike[str] | None = None) -> ArmConfig:
-    """Read and check a configuration file; None loads the shipped default."""
+def read_config(path: str | os.PathLike[str] | None = None) -> ArmConfig:
+    """Read and check one configuration file as it is (no user file, no environment); None reads
+    the shipped default."""
     if path is None:
         resource = resources.files("bioscara").joinpath("data/default.toml")
         source, read = str(resource), resource.read_bytes
@@ -307,8 +312,8 @@ _SIM_KEYS = {
 def _bus(p: _Problems, top: dict[str, Any]) -> BusConfig:
     table = _section(p, _table(p, top, "bus"), "bus", set(_BUS_KEYS))
     values = _read(p, table, "bus", _BUS_KEYS)
-    if "url" in values and not values["url"].startswith(BUS_SCHEMES):
-        p.add(f"bus.url = {_show(values['url'])} must start with one of {', '.join(BUS_SCHEMES)}")
+    if "url" in values and not values["url"].startswith(schemes()):
+        p.add(f"bus.url = {_show(values['url'])} must start with one of {', '.join(schemes())}")
     return BusConfig(**values)
 
 
@@ -360,8 +365,9 @@ def _check_motor_side(p: _Problems, jc: JointConfig, path: str) -> bool:
                   f"{jc.reduction}; the joint accepts 0.001..1e6")
             ok = False
     span = abs(t.motor_degrees(jc.max) - t.motor_degrees(jc.min))
-    if span > 1e6:
-        p.add(f"{path}: min..max spans {span:.3g} motor degrees; the joint accepts at most 1e6")
+    move_limit = P.register("MOVETOANGLE").write[0].hi
+    if span > move_limit:
+        p.add(f"{path}: min..max spans {span:.3g} motor degrees; the joint accepts at most {move_limit:g}")
         ok = False
     return ok
 

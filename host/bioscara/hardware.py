@@ -1,13 +1,16 @@
-"""Open what a configuration describes: the bus (simulated in mock mode), the arm, the gripper."""
+"""Open what a configuration describes: the bus (simulated in mock mode), the arm, the gripper.
+
+`open_arm()` is the Python API's entry point; the command line opens the same way (session.py)."""
 
 from __future__ import annotations
 
 from typing import Any, Callable
 
 from .arm import Arm
-from .bus import Bus, open_bus
+from .bus import Bus
+from .transports import open_bus
 from .bus.sim import SimJointSpec
-from .config import ArmConfig
+from .config import ArmConfig, load_config
 from .gripper import BaseGripper, Gripper, MockGripper
 
 
@@ -28,9 +31,27 @@ def open_arm_bus(config: ArmConfig, **overrides: Any) -> Bus:
     return open_bus(config.bus_url, **kwargs)
 
 
-def open_arm(config: ArmConfig, bus: Bus | None = None, protocol: str = "auto") -> Arm:
-    """The arm of `config`; `protocol` "auto" (v2 where the joints serve it), "legacy" or "v2"."""
-    return Arm(config, bus if bus is not None else open_arm_bus(config), protocol)
+def open_arm(config: ArmConfig | None = None, bus: Bus | None = None, protocol: str = "auto", *,
+             watch: bool = False, take_over: bool = False) -> Arm:
+    """The arm a program uses, as the `bioscara` commands open it.
+
+    `config`: by default `load_config()` (the user's file or the shipped one, $BIOSCARA_BUS);
+    `bus`: by default the configuration's, opened here and closed with the arm; `protocol` "auto"
+    (v2 where the joints serve it), "legacy" or "v2"; `watch`: only read, beside whatever program
+    commands the arm; `take_over`: if another program commands it, stop that one and command.
+
+        with open_arm() as arm:       # configured; on exit stopped, disabled and let go
+            arm.activate()
+            ...
+    """
+    config = config if config is not None else load_config()
+    owns_bus = bus is None
+    bus = bus if bus is not None else open_arm_bus(config)
+    if take_over and bus.commander is not None:
+        bus.commander.take_over = True
+    arm = Arm(config, bus, protocol, watch=watch)
+    arm.owns_bus = owns_bus
+    return arm
 
 
 def open_gripper(config: ArmConfig, clock: Callable[[], float] | None = None) -> BaseGripper | None:

@@ -12,14 +12,24 @@ units through the joint's `Transmission`. Differences from the original, all fix
 * a rejected homing call changes nothing (the offset is taken only once homing succeeded);
 * `get_position` raises NotHomedError instead of returning 0.0 when the joint is not homed;
 * `init` twice is harmless; `close` is explicit and idempotent.
+
+The joint is reached through a `link.Link` (legacy map, protocol v2, or watched from beside
+another program's commands) and never asks which: commands are built once (`Command`, with the
+guards and unit conversion) and handed to the link, refusals come back as one kind of error.
+A joint that commands (the default) makes this program the bus's commander (commander.py) while
+it is open; a watching joint (`watch=True`) never commands and never changes the joint's protocol.
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
+import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from enum import Enum, IntEnum
+from typing import Any
 
 from .bus.base import Bus
 from .errors import (
@@ -28,15 +38,14 @@ from .errors import (
 )
 from .firmware.spec import protocol as P
 from .firmware.spec import protocol_v2 as V
+from .link import Command, LegacyLink, Link, LinkRejected, V2Link, WatchedLink
 from .transmission import Transmission
-from .v2link import V2Link, V2Rejected
 
 log = logging.getLogger("bioscara.joint")
 
 CACHED_FLAGS = P.FLAG_STALL | P.FLAG_BUSY | P.FLAG_NOTHOMED | P.FLAG_NOTENABLED
 V2_SWITCH_S = 0.001  # one pass of the joint's main loop
 V2_SWITCH_TIMEOUT_S = 0.05  # the slowest pass the chip shows, a garbage collection included
-V2_FALLBACK_AFTER = 3  # corrupted v2 states in a row before checking whether the joint went legacy
 # A joint resting at its end stop reads a hair beyond it: encoder noise and error at rest, and the
 # float32 motor degrees of the wire. Positions this close (motor degrees) beyond a limit count as
 # on it (they are clamped onto it), so holding a joint where it stands never fails.
@@ -97,7 +106,8 @@ class Joint:
 
     def __init__(self, name: str, address: int, bus: Bus, *, reduction: float = 1.0,
                  min: float = -math.inf, max: float = math.inf, max_velocity: float = math.inf,
-                 flags_max_age: float = 0.02, homing_range_check: float | None = None) -> None:
+                 flags_max_age: float = 0.02, homing_range_check: float | None = None,
+                 watch: bool = False) -> None:
         if not min < max:
             raise InvalidArgumentError(f"min ({min}) must be below max ({max})", joint=name)
         self.name = name
@@ -117,7 +127,19 @@ class Joint:
         self.current_blocking = BlockingCommand.NONE
         self._homing_offset = 0.0
         self._open = False
-        self.v2: V2Link | None = None  # set while the joint speaks protocol v2
+        self.watch = watch
+        self.link: Link = LegacyLink(bus, address, name)
+        # The latest state read, in wire units, and when (bus clock): what a commander publishes.
+        self.position_deg = math.nan
+        self.velocity_rpm = math.nan
+        self.state_time = -math.inf
+        self.cached_identity: Identity | None = None
+        # Why the joint disabled itself, when it did so without this host asking (None: it did
+        # not): its deadman (with this host's silence before), a stall, or a reboot.
+        self.disabled_cause: str | None = None
+        self._disabling = False  # this host is disabling the joint: NOTENABLED is its own doing
+        self._offset_stale = False  # a watched joint was homed (by its commander): read the new offset
+        self._commanded_by: object = None  # a watched joint's commander at the last cycle
 
     def __repr__(self) -> str:
         return f"Joint({self.name!r}, 0x{self.address:02x}, flags={P.describe_flags(self.flags)})"
@@ -128,6 +150,12 @@ class Joint:
         """Check communication; restore the homing offset if the joint is still homed."""
         if self._open:
             return
+        commander = self.bus.commander
+        if self.watch and commander is not None:
+            self.link = WatchedLink(self.bus, self.address, self.name, commander)
+        elif commander is not None:
+            commander.claim()  # ArmBusyError if another program commands this bus
+            commander.publish(self.published_state)
         self._open = True
         self.current_blocking = BlockingCommand.NONE  # whatever ran before is the joint's past now
         try:
@@ -136,14 +164,43 @@ class Joint:
             except CommError:
                 raise
             except BioscaraError:  # it answers, but not in the legacy map: left in v2 by a host?
-                if not self.take_over_v2():
-                    raise
-                self.use_legacy()
+                self._restore_legacy()
             if self.is_homed():
                 self.transmission = self.transmission.with_offset(self.get_homing_offset())
         except BioscaraError:
-            self._open = False
+            self._let_go()
             raise
+
+    def _restore_legacy(self) -> None:
+        """The joint serves v2 with no host commanding it (a program that did was killed): take it
+        over and return it to the legacy map. A watching joint does so as a commander for that
+        moment only, and not at all while another program commands."""
+        if not self.watch:
+            if not self.take_over_v2():
+                raise CommError("the joint answers neither the legacy map nor protocol v2", joint=self.name)
+            self.use_legacy()
+            return
+        commander = self.bus.commander
+        if commander is not None:
+            commander.claim()
+        watched, self.link = self.link, LegacyLink(self.bus, self.address, self.name)
+        try:
+            if not self.take_over_v2():
+                raise CommError("the joint answers neither the legacy map nor protocol v2", joint=self.name)
+            self.use_legacy()
+        finally:
+            self.link = watched
+            if commander is not None:
+                commander.release()
+        self.check_com()
+
+    def _let_go(self) -> None:
+        """Closed: no longer this program's to command."""
+        was_open, self._open = self._open, False
+        commander = self.bus.commander
+        if was_open and not self.watch and commander is not None:
+            commander.withdraw(self.published_state)
+            commander.release()
 
     def close(self) -> None:
         """Stop using the joint (no motor I/O; call `disable` first to de-energize). Idempotent.
@@ -158,54 +215,56 @@ class Joint:
                 self.set_watchdog(0)
             except BioscaraError as exc:
                 log.info("joint %s keeps its watchdog: %s", self.name, exc)
-        if self.v2 is not None and self._open:
+        if isinstance(self.link, V2Link) and self._open:
             try:
                 self.use_legacy()
             except BioscaraError as exc:
                 log.info("joint %s left in protocol v2: %s", self.name, exc)
-        self._open = False
+        self._let_go()
         self.current_blocking = BlockingCommand.NONE
-        self.v2 = None
+        if not isinstance(self.link, WatchedLink):
+            self.link = LegacyLink(self.bus, self.address, self.name)
 
     # ---- protocol ----
 
     @property
     def protocol(self) -> str:
-        """"v2" while the joint speaks the memory-mapped protocol, else "legacy"."""
-        return "v2" if self.v2 is not None else "legacy"
+        """"v2" while the joint speaks the memory-mapped protocol, "legacy" in the original map,
+        "watched" for a watching joint."""
+        return self.link.name
 
     def use_v2(self) -> None:
         """Switch the joint to protocol v2 (the legacy PROTOCOL register), then sync with it."""
         self._require_open()
-        if self.v2 is not None:
+        if isinstance(self.link, V2Link):
             return
         self._command(P.PROTOCOL, V.PROTOCOL_V2)
         self.bus.sleep(2 * V2_SWITCH_S)  # the joint switches in its next main-loop pass
         link = V2Link(self.bus, self.address, self.name)
         self._take_flags(link.sync().flags)
-        self.v2 = link
+        self.link = link
 
     def use_legacy(self) -> None:
         """Return the joint to the legacy register map (the v2 PROTOCOL command). The joint
         keeps serving v2 until this host has read the verdict, then switches in a main-loop
         pass: the legacy PING that follows is the confirmation."""
         self._require_open()
-        link = self.v2
-        if link is None:
+        link = self.link
+        if not isinstance(link, V2Link):
             return
         problem: BioscaraError | None = None
         for _ in range(3):
             try:
-                link.command(P.PROTOCOL, P.register(P.PROTOCOL).encode(V.PROTOCOL_LEGACY))
+                link.command(Command(P.PROTOCOL, P.register(P.PROTOCOL).encode(V.PROTOCOL_LEGACY)))
             except CommError as exc:
                 problem = exc  # perhaps only the verdict was lost: the PING below tells
-            self.v2 = None
+            self.link = LegacyLink(self.bus, self.address, self.name)
             try:
                 self._await_legacy()
                 return
             except BioscaraError as exc:
                 problem = exc
-                self.v2 = link
+                self.link = link
         raise CommError(f"the joint did not return to the legacy map ({problem.detail if problem else ''})",
                         joint=self.name)
 
@@ -229,8 +288,20 @@ class Joint:
             self._take_flags(link.sync(attempts=4).flags)
         except BioscaraError:
             return False
-        self.v2 = link
+        self.link = link
         return True
+
+    @contextlib.contextmanager
+    def visit_legacy(self) -> Iterator[None]:
+        """Reads of registers the v2 state block does not carry (diagnostics, the homing check):
+        the joint speaks the legacy map for the block's length, then v2 again if it did."""
+        was_v2 = isinstance(self.link, V2Link)
+        self.use_legacy()
+        try:
+            yield
+        finally:
+            if was_v2:
+                self.use_v2()
 
     deinit = close
 
@@ -277,13 +348,16 @@ class Joint:
 
     def enable(self, drive_current: int, hold_current: int) -> None:
         """Energize with currents in % (0..100); also turns stall detection off, as SETUP does."""
+        self._disabling = False
         self._command(P.SETUP, drive_current, hold_current, 0, 0)
+        self.disabled_cause = None
         if not self.is_enabled():
             raise NotEnabledError("still not enabled after SETUP", joint=self.name)
 
     def disable(self) -> None:
         """Stop, zero both currents and freewheel. Tries every step; raises the first failure."""
         first: BioscaraError | None = None
+        self._disabling = True
         for step in (self.stop, lambda: self.set_hold_current(0), lambda: self.set_drive_current(0),
                      lambda: self.set_brake_mode(BrakeMode.FREEWHEEL)):
             try:
@@ -338,7 +412,14 @@ class Joint:
         (degrees,) = self._read(P.register(P.ANGLEMOVED))
         if not self.is_homed():
             raise NotHomedError("position is meaningless before homing", joint=self.name)
+        self._follow_homing()
         return self.transmission.position(degrees)
+
+    def _follow_homing(self) -> None:
+        """A watched joint that another program homed: take the offset that homing stored."""
+        if self._offset_stale:
+            self._offset_stale = False
+            self.transmission = self.transmission.with_offset(self.get_homing_offset())
 
     @property
     def limit_slack(self) -> float:
@@ -356,13 +437,13 @@ class Joint:
 
     def set_position(self, position: float) -> None:
         """Move to `position` (joint units) within [min, max] (see `within_limits`)."""
-        self._check_stall(self._command(P.MOVETOANGLE, self.position_setpoint(position)))
+        self._check_stall(self._send(self.position_command(position)))
 
-    def position_setpoint(self, position: float) -> float:
-        """The MOVETOANGLE value (motor degrees) for `position`, after the guards."""
+    def position_command(self, position: float) -> Command:
+        """MOVETOANGLE to `position` (joint units), after the guards: for `set_position` or `cycle`."""
         position = self.within_limits(position)
         self._require_enabled_and_homed()
-        return self.transmission.motor_degrees(position)
+        return self._build(P.MOVETOANGLE, self.transmission.motor_degrees(position))
 
     def get_velocity(self) -> float:
         """Encoder velocity, joint units/s."""
@@ -371,39 +452,38 @@ class Joint:
 
     def set_velocity(self, velocity: float) -> None:
         """Turn at `velocity` (joint units/s); |velocity| <= max_velocity."""
-        self._check_stall(self._command(P.SETRPM, self.velocity_setpoint(velocity)))
+        self._check_stall(self._send(self.velocity_command(velocity)))
 
-    def velocity_setpoint(self, velocity: float) -> float:
-        """The SETRPM value (motor rpm) for `velocity`, after the guards."""
+    def velocity_command(self, velocity: float) -> Command:
+        """SETRPM for `velocity` (joint units/s), after the guards: for `set_velocity` or `cycle`."""
         if not (math.isfinite(velocity) and abs(velocity) <= self.max_velocity):
             raise InvalidArgumentError(f"velocity {velocity} exceeds the limit {self.max_velocity}", joint=self.name)
         self._require_enabled_and_homed()
-        return self.transmission.motor_rpm(velocity)
+        return self._build(P.SETRPM, self.transmission.motor_rpm(velocity))
 
-    def cycle_v2(self, register: int | None = None, value: float = 0.0) -> tuple[float, float] | None:
-        """Protocol v2: one transaction sending a setpoint (MOVETOANGLE / SETRPM with its motor
-        value, None for none) and reading the state. Returns (position, velocity) in joint units
-        (position NaN while not homed), or None if no intact, fresh state arrived this time."""
+    def cycle(self, setpoint: Command | None = None) -> tuple[float, float] | None:
+        """One control cycle over whichever link the joint speaks: `setpoint` (built by
+        `position_command`/`velocity_command`, or None) out, the state in. Returns (position,
+        velocity) in joint units (position NaN while not homed), or None if no intact, fresh state
+        arrived this time (protocol v2; the last one stands)."""
         self._require_open()
-        link = self.v2
-        if link is None:
-            raise IncorrectStateError("the joint does not speak protocol v2", joint=self.name)
-        try:
-            if register is None:
-                state = link.exchange()
-            else:
-                state = link.send(register, P.register(register).encode(value))
-        except V2Rejected as exc:
-            raise self._v2_error(exc) from None
-        except ValueError as exc:
-            raise InvalidArgumentError(str(exc), joint=self.name) from None
+        if setpoint is not None and self.watch:
+            raise IncorrectStateError(f"{setpoint.name}: this program only watches the joint", joint=self.name)
+        state = self._over_link(lambda link: link.cycle(setpoint))
         if state is None:
-            if link.bad_in_a_row >= V2_FALLBACK_AFTER:
-                self._lost_v2()
             return None
-        self._take_flags(state.flags)
-        if register is not None:
+        self._take_state(state.flags, state.position_deg, state.velocity_rpm)
+        if setpoint is not None:
             self._check_stall(state.flags)
+        if self.watch:
+            # While another program commands, its offset may change (it homes): take it with every
+            # state it publishes, and once more from the joint after it has gone.
+            holder = getattr(self.link, "holder", None)
+            if holder is not None or self._commanded_by is not None:
+                self._offset_stale = True
+            self._commanded_by = holder
+        if self.is_homed():
+            self._follow_homing()
         position = self.transmission.position(state.position_deg) if self.is_homed() else math.nan
         return position, self.transmission.velocity(state.velocity_rpm)
 
@@ -460,7 +540,12 @@ class Joint:
         self.get_flags()
         self._homing_refused = False
         if not self.is_homed():
-            raise NotHomedError("homing ended without reaching the end stop", joint=self.name)
+            if self.disabled_cause:
+                raise NotHomedError(f"homing ended, not homed: {self.disabled_cause}", joint=self.name)
+            with self.visit_legacy():  # HOMINGRESULT is not in the v2 state block
+                (outcome,) = self._read(P.register(P.HOMINGRESULT))
+            why = P.HOMING_OUTCOMES[outcome] if 0 < outcome < len(P.HOMING_OUTCOMES) else "the end stop was not reached"
+            raise NotHomedError(f"homing ended, not homed: {why}", joint=self.name)
         if self.homing_range_check is not None:
             self._check_homed_range(self.homing_range_check)
         self.transmission = self.transmission.with_offset(self._homing_offset)
@@ -469,7 +554,8 @@ class Joint:
     def _check_homed_range(self, tolerance: float) -> None:
         """The stop homing found must be plausible: no farther than the joint's range from where it
         started, and (when the joint was homed before) about where the end stop was expected."""
-        (travel,) = self._read(P.register(P.HOMINGTRAVEL))
+        with self.visit_legacy():  # HOMINGTRAVEL is not in the v2 state block
+            (travel,) = self._read(P.register(P.HOMINGTRAVEL))
         scale = math.degrees(abs(self.transmission.reduction))  # motor degrees per joint unit
         slack = tolerance * scale + 2.0 * LIMIT_SLACK_DEG
         problem = None
@@ -512,7 +598,8 @@ class Joint:
     def identity(self) -> Identity:
         """Protocol and firmware version, joint id and spec hash (firmware of this project only)."""
         protocol, major, minor, patch, joint_id, spec_hash = self._read(P.register(P.IDENTITY))
-        return Identity(protocol, (major, minor, patch), joint_id, spec_hash)
+        self.cached_identity = Identity(protocol, (major, minor, patch), joint_id, spec_hash)
+        return self.cached_identity
 
     def last_reject(self) -> RejectInfo:
         """Why the joint last rejected a frame."""
@@ -544,7 +631,8 @@ class Joint:
         self._require_open()
         self._fresh_flags()
         if not self.is_enabled():
-            raise NotEnabledError("not enabled", joint=self.name)
+            why = f" ({self.disabled_cause})" if self.disabled_cause else ""
+            raise NotEnabledError(f"not enabled{why}", joint=self.name)
 
     def _require_enabled_and_homed(self) -> None:
         self._require_enabled()
@@ -556,124 +644,120 @@ class Joint:
             raise StalledError("stall detected: the motor stopped", joint=self.name)
 
     def _take_flags(self, flags: int) -> None:
+        now = self.bus.monotonic()
+        was = self.flags
         self.flags = flags & CACHED_FLAGS
-        self.flags_time = self.bus.monotonic()
+        if self.watch and was & P.FLAG_NOTHOMED and not flags & P.FLAG_NOTHOMED:
+            self._offset_stale = True
+        if flags & P.FLAG_NOTENABLED and not was & P.FLAG_NOTENABLED and not self._disabling and not self.watch:
+            self.disabled_cause = self._why_disabled(was, flags, now - self.flags_time)
+            log.warning("joint %s: %s", self.name, self.disabled_cause)
+        self.flags_time = now
+
+    def _why_disabled(self, was: int, flags: int, silence_s: float) -> str:
+        """Why an enabled joint is found disabled without this host asking: the joint's own
+        flags tell a stall or a reboot; otherwise its deadman, with how long this host had been
+        silent (`silence_s`: since the previous answer) against the joint's timeout."""
+        if flags & P.FLAG_STALL:
+            return "the joint disabled itself: stall detection stopped it"
+        if flags & P.FLAG_NOTHOMED and not was & P.FLAG_NOTHOMED:
+            return "the joint rebooted (it lost its homing)"
+        timeout_ms = self.watchdog_ms or 50
+        silent_ms = silence_s * 1000.0
+        if silent_ms >= timeout_ms:
+            return (f"the joint disabled itself: its deadman, after {silent_ms:.0f} ms without traffic from "
+                    f"this host (its timeout is {timeout_ms} ms)")
+        return (f"the joint disabled itself (its deadman or another program; this host's traffic was "
+                f"{silent_ms:.0f} ms apart, its timeout {timeout_ms} ms)")
+
+    def _take_state(self, flags: int, position_deg: float, velocity_rpm: float) -> None:
+        self._take_flags(flags)
+        self.position_deg, self.velocity_rpm, self.state_time = position_deg, velocity_rpm, self.flags_time
+
+    def published_state(self) -> dict[str, Any]:
+        """What this joint's commander serves to watching programs (commander.py): the latest
+        flags, position and velocity read (wire units), the homing offset and identity."""
+        identity = self.cached_identity
+        return {self.name: {
+            "address": self.address, "protocol": self.protocol, "flags": self.flags,
+            "position_deg": self.position_deg, "velocity_rpm": self.velocity_rpm,
+            "offset": self.transmission.offset, "read": math.isfinite(self.state_time),
+            "age_s": self.bus.monotonic() - self.state_time if math.isfinite(self.state_time) else None,
+            "identity": None if identity is None else [identity.protocol, *identity.firmware,
+                                                       identity.joint_id, identity.spec_hash]}}
+
+    def _over_link(self, exchange: Any) -> Any:
+        """`exchange(link)` on the joint's link; refusals become this package's errors. A link
+        that lost the joint (protocol v2 after a reboot or a host silence) is swapped for the
+        legacy map if the joint answers there, and the exchange is tried once more."""
+        link = self.link
+        try:
+            return exchange(link)
+        except LinkRejected as exc:
+            raise self._error(exc) from None
+        except CommError:
+            if not link.lost or not self._lost_v2():
+                raise
+        try:
+            return exchange(self.link)
+        except LinkRejected as exc:
+            raise self._error(exc) from None
 
     def _read(self, reg: P.Register) -> tuple:
         self._require_open()
-        if self.v2 is not None:
-            return self._read_v2(reg)
-        reply = self._transfer(bytes([reg.addr]), reg.rsize + 1)
-        self._take_flags(reply[-1])
-        if reply[-1] & P.FLAG_ERROR:
-            raise BioscaraError(f"the joint rejected the read of {reg.name}", joint=self.name)
-        return reg.decode(reply[:-1])
+        values, flags = self._over_link(lambda link: link.read(reg))
+        if reg.addr == P.ANGLEMOVED:
+            self._take_state(flags, values[0], self.velocity_rpm)
+        elif reg.addr == P.GETENCODERRPM:
+            self._take_state(flags, self.position_deg, values[0])
+        else:
+            self._take_flags(flags)
+        return values
 
-    def _transfer(self, write: bytes, read_len: int) -> bytes:
-        """One bus transaction; a bus error names this joint as well as its address."""
+    def _build(self, addr: int, *values: float | int) -> Command:
+        reg = P.register(addr)
         try:
-            return self.bus.transfer(self.address, write, read_len)
-        except CommError as exc:
-            if exc.joint:
-                raise
-            raise CommError(exc.detail, joint=self.name) from None
+            return Command(reg.addr, reg.encode(*values))
+        except ValueError as exc:
+            raise InvalidArgumentError(str(exc), joint=self.name) from None
 
     def _command(self, addr: int, *values: float | int) -> int:
         """Write a register, returning the reply flags (which already show the command's effect)."""
         self._require_open()
-        reg = P.register(addr)
-        try:
-            payload = reg.encode(*values)
-        except ValueError as exc:
-            raise InvalidArgumentError(str(exc), joint=self.name) from None
-        return self._send(reg, payload)
+        return self._send(self._build(addr, *values))
 
-    def _send(self, reg: P.Register, payload: bytes) -> int:
-        if self.v2 is not None:
-            return self._command_v2(reg, payload)
-        reply = self._transfer(bytes([reg.addr]) + payload, 1)
-        self._take_flags(reply[0])
-        if reply[0] & P.FLAG_ERROR:
-            raise self._rejected(reg)
-        return reply[0]
+    def _send(self, command: Command) -> int:
+        if self.watch:
+            raise IncorrectStateError(f"{command.name}: this program only watches the joint", joint=self.name)
+        flags = self._over_link(lambda link: link.command(command))
+        self._take_flags(flags)
+        return flags
 
-    def _rejected(self, reg: P.Register) -> BioscaraError:
-        try:
-            why = self.last_reject()
-        except BioscaraError:
-            return BioscaraError(f"the joint rejected {reg.name}", joint=self.name)
-        if why.reason == P.REJECT_BUSY:
-            return IncorrectStateError(f"the joint rejected {why.text}", joint=self.name)
-        if why.reason in (P.REJECT_DISABLED, P.REJECT_NOT_ENABLED):
-            return NotEnabledError(f"the joint rejected {why.text}", joint=self.name)
-        if why.reason == P.REJECT_STALLED:
-            return StalledError(f"the joint rejected {why.text}", joint=self.name)
-        if why.reason == P.REJECT_HOMING_SENSITIVITY:
-            return InvalidArgumentError(f"the joint rejected {why.text}", joint=self.name)
-        if why.reason in (P.REJECT_VALUE, P.REJECT_LENGTH):
-            return InvalidArgumentError(f"the joint rejected {why.text}", joint=self.name)
-        return BioscaraError(f"the joint rejected {why.text}", joint=self.name)
+    def _error(self, exc: LinkRejected) -> BioscaraError:
+        """The one map from a joint's refusal (its v2 verdict, or legacy reason translated) to an error."""
+        self._take_flags(exc.flags)
+        if exc.reason == V.REASON_BUSY:
+            return IncorrectStateError(exc.detail, joint=self.name)
+        if exc.reason == V.REASON_DISABLED and exc.flags & P.FLAG_STALL:
+            return StalledError(exc.detail, joint=self.name)
+        if exc.reason == V.REASON_DISABLED:
+            why = f" ({self.disabled_cause})" if self.disabled_cause else ""
+            return NotEnabledError(exc.detail + why, joint=self.name)
+        if exc.reason in (V.REASON_VALUE, V.REASON_COMMAND):
+            return InvalidArgumentError(exc.detail, joint=self.name)
+        return BioscaraError(exc.detail, joint=self.name)
 
-    # ---- protocol v2 ----
-
-    def _lost_v2(self) -> None:
+    def _lost_v2(self) -> bool:
         """The joint answers v2 exchanges with garbage: if it speaks legacy now (it rebooted, or
-        fell back after a silence), continue in legacy; its flags say what it lost."""
-        link = self.v2
-        self.v2 = None
+        fell back after a silence), continue in legacy (True); its flags say what it lost."""
+        link = self.link
+        self.link = LegacyLink(self.bus, self.address, self.name)
         try:
             self.check_com()
         except BioscaraError:
-            self.v2 = link  # still not legacy: noise on the bus, keep trying v2
-            link.bad_in_a_row = 0  # type: ignore[union-attr]
-            return
+            self.link = link  # still not legacy: noise on the bus, keep trying v2
+            if isinstance(link, V2Link):
+                link.bad_in_a_row = 0
+            return False
         log.warning("joint %s serves the legacy map again (reboot or host silence)", self.name)
-
-    def _read_v2(self, reg: P.Register) -> tuple:
-        """The registers the v2 state block carries; the others only exist in the legacy map."""
-        if reg.addr not in (P.PING, P.ANGLEMOVED, P.GETENCODERRPM):
-            # Not in the state block: a short visit to the legacy map (diagnostics, not the cycle).
-            self.use_legacy()
-            try:
-                return self._read(reg)
-            finally:
-                self.use_v2()
-        link = self.v2
-        try:
-            state = link.poll()  # type: ignore[union-attr]
-        except CommError:
-            if link.bad_in_a_row >= V2_FALLBACK_AFTER:  # type: ignore[union-attr]
-                self._lost_v2()
-                if self.v2 is None:
-                    return self._read(reg)
-            raise
-        self._take_flags(state.flags)
-        if reg.addr == P.PING:
-            return (P.ACK,)
-        return (state.position_deg,) if reg.addr == P.ANGLEMOVED else (state.velocity_rpm,)
-
-    def _command_v2(self, reg: P.Register, payload: bytes) -> int:
-        link = self.v2
-        try:
-            state = link.command(reg.addr, payload)  # type: ignore[union-attr]
-        except V2Rejected as exc:
-            raise self._v2_error(exc) from None
-        except CommError:
-            if link.bad_in_a_row >= V2_FALLBACK_AFTER:  # type: ignore[union-attr]
-                self._lost_v2()
-                if self.v2 is None:  # it speaks legacy now: send the command that way
-                    return self._send(reg, payload)
-            raise
-        self._take_flags(state.flags)
-        return state.flags
-
-    def _v2_error(self, exc: V2Rejected) -> BioscaraError:
-        if exc.verdict == V.REASON_BUSY:
-            return IncorrectStateError(exc.detail, joint=self.name)
-        if exc.verdict == V.REASON_DISABLED and exc.flags & P.FLAG_STALL:
-            return StalledError(exc.detail, joint=self.name)
-        if exc.verdict == V.REASON_DISABLED:
-            return NotEnabledError(exc.detail, joint=self.name)
-        if exc.verdict in (V.REASON_VALUE, V.REASON_COMMAND):
-            return InvalidArgumentError(exc.detail, joint=self.name)
-        return BioscaraError(exc.detail, joint=self.name)
+        return True

@@ -1,6 +1,6 @@
 """A MicroPython board seen through mpremote: what it is, its files, its REPL.
 
-`Board` is the interface `bioscara.flash` works against; `MpremoteBoard` is the real one (mpremote's
+`Board` is the interface `bioscara.firmware_flash` works against; `MpremoteBoard` is the real one (mpremote's
 serial transport, raw REPL); tests also use an in-memory fake. Paths are absolute board paths.
 """
 

@@ -1,7 +1,7 @@
 """Monitor recordings: CSV or JSON Lines (by file suffix), stamped with the protocol spec hash.
 
 Rows are flushed as they are written, so a recording interrupted by a crash keeps every row
-before it. The first line is metadata: in CSV a `# {json}` comment, in JSON Lines `{"meta": {...}}`.
+before it (a JSON Lines row cut short by the kill is skipped with a warning when read). The first line is metadata: in CSV a `# {json}` comment, in JSON Lines `{"meta": {...}}`.
 """
 
 from __future__ import annotations
@@ -9,6 +9,7 @@ from __future__ import annotations
 import csv
 import datetime
 import json
+import logging
 import math
 from pathlib import Path
 from typing import IO, Any
@@ -19,6 +20,7 @@ from .errors import InvalidArgumentError
 from .firmware.spec import protocol as P
 
 SUFFIXES = (".csv", ".jsonl", ".ndjson")
+log = logging.getLogger("bioscara.recording")
 
 
 def _kind(path: Path) -> str:
@@ -89,7 +91,13 @@ def read_trace(path: str | Path) -> tuple[dict[str, Any], list[dict[str, float |
                 meta = json.loads(first)["meta"]
                 rows = []
                 for line in f:
-                    record = json.loads(line)
+                    try:
+                        record = json.loads(line)
+                    except ValueError:
+                        if line.endswith("\n"):
+                            raise
+                        log.warning("%s: skipped the last line, cut short (the recording was interrupted)", path)
+                        break
                     rows.append({"time": record["time"], "cycle": record["cycle"], **record["values"]})
         for key in ("joints", "bus", "spec_hash", "rate_hz"):
             meta[key]  # noqa: B018 - a recording without these cannot be labelled or plotted

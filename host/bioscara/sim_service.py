@@ -35,6 +35,7 @@ import json
 import logging
 import os
 import socket
+import stat
 import struct
 import subprocess
 import sys
@@ -89,6 +90,16 @@ class _Client:
         self.inbox = bytearray()
 
 
+def _hung_up(sock: socket.socket) -> bool:
+    """The peer closed its end (a received request may still be unread in our buffer)."""
+    try:
+        return sock.recv(1, socket.MSG_PEEK) == b""
+    except (BlockingIOError, InterruptedError):
+        return False
+    except OSError:
+        return True
+
+
 class SocketFrontend:
     """Serves the unix socket from inside `SimServer`'s loop: `fds()` to wait on, `poll()` to serve."""
 
@@ -140,6 +151,8 @@ class SocketFrontend:
                 return False
             if len(box) < _LENGTH.size + size:
                 return True
+            if _hung_up(client.sock):
+                return False  # the client gave up waiting (its timeout): a late answer would apply a command it reported as failed
             body = bytes(box[_LENGTH.size:_LENGTH.size + size])
             del box[:_LENGTH.size + size]
             status, payload = self._answer(body)
@@ -189,6 +202,18 @@ class SocketFrontend:
             client.sock.close()
 
 
+def _not_a_socket(path: Path) -> str:
+    """Why the service cannot listen at `path` ("" if nothing, or an old socket, is there)."""
+    try:
+        mode = path.lstat().st_mode
+    except FileNotFoundError:
+        return ""
+    if stat.S_ISSOCK(mode):
+        return ""
+    kind = "directory" if stat.S_ISDIR(mode) else "symbolic link" if stat.S_ISLNK(mode) else "file"
+    return f"{path} is a {kind}, not the simulated arm's socket: remove it (nothing else may use that name)"
+
+
 def serve(state_dir: Path, specs: Sequence[SimJointSpec], *, seed: int = 1, speed_hz: int = 400_000,
           idle_exit_s: float | None = DEFAULT_IDLE_EXIT_S, ready: Any = None) -> int:
     """Run the service until STOP (or SIGTERM/SIGINT, or `idle_exit_s` idle; None: never); 0 also
@@ -209,6 +234,12 @@ def serve(state_dir: Path, specs: Sequence[SimJointSpec], *, seed: int = 1, spee
             if ready:
                 ready("running")
             return 0
+        in_the_way = _not_a_socket(path)
+        if in_the_way:
+            log.error("%s", in_the_way)
+            if ready:
+                ready(f"error: {in_the_way}")
+            return 1
         with contextlib.suppress(FileNotFoundError):
             path.unlink()  # left by a service that crashed: we hold the lock, nobody else serves it
         listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
@@ -344,6 +375,9 @@ def start(state_dir: Path, specs: Sequence[SimJointSpec], *, seed: int = 1, spee
     process.stdout.close()
     if line == "ready":
         return True
+    if line.startswith("error: "):
+        process.wait()
+        raise CommError(line.removeprefix("error: "))
     deadline = time.monotonic() + timeout
     if line == "running":  # another start won the lock: wait for it to listen
         while time.monotonic() < deadline:
@@ -433,6 +467,9 @@ class ServiceBus(Bus):
     def describe(self) -> str:
         return "sim:"
 
+    def arm_lock_path(self) -> Path:
+        return self.state_dir / "arm-sim.lock"  # beside the service: a private state dir has its own
+
     def _hello(self) -> dict[str, Any]:
         try:
             code, payload = self._ask(HELLO, json.dumps({"specs": specs_to_json(self.specs)}).encode())
@@ -450,14 +487,20 @@ class ServiceBus(Bus):
             reused = self._connection is not None
             try:
                 return self._connected().ask(op, payload)
+            except TimeoutError:
+                self._disconnect()  # the service hears the hang-up and drops the request, unanswered
+                raise
             except OSError:
                 self._disconnect()
                 if not reused:
                     raise
+            except BaseException:
+                self._disconnect()  # interrupted (Ctrl-C) mid-request: its answer must not reach the next one
+                raise
             # The connection had gone stale (the service was restarted): one try on a fresh one.
             try:
                 return self._connected().ask(op, payload)
-            except OSError:
+            except BaseException:
                 self._disconnect()
                 raise
 

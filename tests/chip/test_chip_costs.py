@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from bioscara.bus.sim import SimBus
-from bioscara.config import load_config
+from bioscara.config import read_config
 from bioscara.hardware import sim_joint_specs
 from chip.board import EmulatedPico
 from chip.i2c import JointBusClient, joint_bus_plugin
@@ -40,7 +40,7 @@ def chip_cycle_us(joint_image: Path) -> Iterator[float]:  # noqa: F811 (the fixt
 
 def simulated_cycle_us() -> float:
     """The same cycle on the simulated J1 (enabled as on the chip), in the bus's virtual time."""
-    specs = [spec for spec in sim_joint_specs(load_config()) if spec.address == ADDRESS]
+    specs = [spec for spec in sim_joint_specs(read_config()) if spec.address == ADDRESS]
     bus = SimBus(specs, speed_hz=400_000)
     write, read_len = legacy_transaction("SETUP")
     bus.transfer(ADDRESS, write, read_len)

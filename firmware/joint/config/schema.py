@@ -9,10 +9,12 @@ Used at boot only on the board (the objects it builds are settings.py's).
 import json
 
 from ..core.supervise import DETECTOR_NAMES
+from ..micro import board_module
 from .settings import CONFIG_FILE, JOINTS, JointConfig, Section
 
 ADDRESSES = {"J1": 0x11, "J2": 0x12, "J3": 0x13, "J4": 0x14}
-BACKENDS = ("pico", "sim")
+BACKENDS = ("pico", "s32", "sim")
+S32_JOINT_BUS = 1  # the uStepper S32's joint bus is I2C1 (PB8 SCL, PB9 SDA), pins fixed
 SAFE_ACTIONS = ("hold", "freewheel")
 
 _INT = 0
@@ -170,15 +172,23 @@ def _parse_motor(cfg, motor):
         cfg.errors.append("%s: motor.backend = %r is not one of %s" % (cfg.source, backend, ", ".join(BACKENDS)))
         return
     if backend == "pico":
-        from ..pico.motor_config import is_i2c_pin, validate_motor_config
+        motor_config = board_module(__name__[:-len(".config.schema")], "pico.motor_config")
+        is_i2c_pin = motor_config.is_i2c_pin
         bus = cfg.i2c
         for key, scl, role in (("sda", False, "SDA"), ("scl", True, "SCL")):
             pin = getattr(bus, key)
             if not is_i2c_pin(pin, bus.bus, scl):
                 cfg.errors.append("%s: i2c.%s = %d is not an %s pin of I2C%d on the Pico"
                                   % (cfg.source, key, pin, role, bus.bus))
-        for problem in validate_motor_config(motor, {"bus": bus.bus, "sda": bus.sda, "scl": bus.scl}):
+        for problem in motor_config.validate_motor_config(motor, {"bus": bus.bus, "sda": bus.sda, "scl": bus.scl}):
             cfg.errors.append("%s: motor: %s" % (cfg.source, problem))
+    elif backend == "s32":
+        if cfg.i2c.bus != S32_JOINT_BUS:
+            cfg.errors.append("%s: i2c.bus = %d: the uStepper S32's joint bus is I2C%d (PB8/PB9)"
+                              % (cfg.source, cfg.i2c.bus, S32_JOINT_BUS))
+        for key in motor:
+            if key != "backend":
+                cfg.errors.append("%s: unknown key motor.%s (the s32 backend has no settings)" % (cfg.source, key))
     cfg.motor = motor
 
 
@@ -189,17 +199,23 @@ def load(path=CONFIG_FILE):
             raw = f.read()
     except OSError as exc:
         return _unusable(path, "cannot read the file (%s)" % (exc,))
+    return parse_bytes(raw, path)
+
+
+def parse_bytes(raw, source):
+    """Decode and validate a configuration's bytes (a file's, or flash's on a board without a
+    filesystem); never raises."""
     try:
         text = raw.decode("utf-8")
     except UnicodeError:  # MicroPython raises UnicodeError, CPython its subclass
-        return _unusable(path, "not UTF-8 text")
+        return _unusable(source, "not UTF-8 text")
     try:
         data = json.loads(text)
     except ValueError as exc:
-        return _unusable(path, "not valid JSON (%s)" % (exc,))
+        return _unusable(source, "not valid JSON (%s)" % (exc,))
     except (RuntimeError, MemoryError):  # nesting deeper than the parser's recursion (or RAM) allows
-        return _unusable(path, "not valid JSON (nested too deeply)")
-    return parse(data, path)
+        return _unusable(source, "not valid JSON (nested too deeply)")
+    return parse(data, source)
 
 
 def _unusable(path, why):

@@ -61,7 +61,7 @@ class Commands:
             core.drive_current, core.hold_current, _on(core.closed_loop), _on(core.stallguard),
             core.stall.sensitivity))
         write("bus  transactions %d  rejects %d  deadman %d ms  log %s" % (
-            core.transactions, core.rejects, cfg.deadman_ms, L.LEVEL_NAMES[core.log.level]))
+            core.transactions, core.reject_count(), cfg.deadman_ms, L.LEVEL_NAMES[core.log.level]))
         if cfg.valid:
             s = cfg.stall
             write("stall  spike limit %g usteps  lowpass K %g Ts %g s tau %g s  threshold x%g, "

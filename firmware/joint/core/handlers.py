@@ -10,6 +10,9 @@ import struct
 from ..micro import micropython
 from ..motion.fixed import ANGLE_Q, RPM_Q, STEPS_Q, f32_to_q, i32, muldiv
 from ..spec.protocol import WATCHDOG
+from .irq import SLOT_STOPS
+
+_EPOCH = SLOT_STOPS - 1  # from a payload's offset: its slot's stop epoch (a blocking command's)
 
 
 def _full_steps(q, off):
@@ -40,6 +43,7 @@ class Handlers:
         if rpm == 0 or self._motion_allowed:  # _may_move(), inlined: a host streams SETRPM
             self.hal.set_rpm(rpm)
             self.positioning = False
+            self.target_known = False
 
     def _move_steps(self, q, off):
         if self._may_move():
@@ -56,9 +60,11 @@ class Handlers:
         if self._may_move():
             self.hal.move_to_angle(self.q_set - self.zero_offset)
             self._positioning_started()
+            self.target_known = True  # q_set is where this move ends (the deadman's hold window)
 
     def _positioning_started(self):
         self.positioning = True
+        self.target_known = False
         self.qd_set = 0
 
     def _set_current(self, q, off):
@@ -111,11 +117,12 @@ class Handlers:
     def _check_orientation(self, q, off):
         # The sign would only swap what counts as inverted: a negative angle would flip a
         # correctly wired motor into closed-loop runaway.
-        self._start_task("CHECKORIENTATION", self._orientation(abs(f32_to_q(q, off, ANGLE_Q))))
+        self._start_task("CHECKORIENTATION", self._orientation(abs(f32_to_q(q, off, ANGLE_Q))),
+                         q[off + _EPOCH])
 
     def _set_watchdog(self, q, off):
         self.watchdog_ms = q[off] | (q[off + 1] << 8)
         struct.pack_into("<H", self._cache[WATCHDOG], 0, self.watchdog_ms)
 
     def _home(self, q, off):
-        self._start_task("HOME", self._homing(q[off], q[off + 1], q[off + 2], q[off + 3]))
+        self._start_task("HOME", self._homing(q[off], q[off + 1], q[off + 2], q[off + 3]), q[off + _EPOCH])

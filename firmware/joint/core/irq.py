@@ -64,8 +64,28 @@ _LIMITS = const(1024)
 _DISABLED = const(1536)
 _STOPS = const(1537)
 _HALTS = const(1538)
-FTAB_DISABLED = const(1536)  # for loop.py
+_BLOCK_IN = const(1539)
+_BLOCK_OUT = const(1540)
+_BLOCK_STOPS = const(1541)
+_TASK = const(1542)
+_TASK_STOPS = const(1543)
+_HOMING_FLOOR = const(1544)
+_HOMING_FLOOR_Q = const(1546)
+_LAST_REASON = const(1548)  # LASTERROR's wire buffer: reason, register, count (u16), flags
+_LAST_REGISTER = const(1549)
+_REJECTS = const(1550)
+_Q_IN = const(1553)
+_Q_OUT = const(1554)
+_REARMS = const(1555)
+FTAB_DISABLED = const(1536)  # for loop.py and tasks.py
 FTAB_HALTS = const(1538)
+FTAB_BLOCK_OUT = const(1540)
+FTAB_TASK = const(1542)
+FTAB_TASK_STOPS = const(1543)
+FTAB_REJECTS = const(1550)  # the rejection count's low byte
+FTAB_Q_IN = const(1553)
+FTAB_Q_OUT = const(1554)
+FTAB_REARMS = const(1555)
 _MOTION = const(1)
 _HOMING = const(2)
 _CHECK_BYTES = const(0)
@@ -79,19 +99,22 @@ def judge_for(core, ftab, queue_buf):
     @micropython.viper
     def judge(frame, n: int) -> int:
         """A command frame of n >= 1 bytes that is no register selection (on_frame): validated,
-        its flag changes applied and queued, or rejected (LASTERROR). Returns the reject reason,
-        REJECT_NONE if accepted. The legacy IRQ adapter calls it directly and keeps the reply
-        selection itself."""
+        its flag changes applied and queued, or rejected (recorded in LASTERROR). Returns the
+        reject reason, REJECT_NONE if accepted. The legacy IRQ adapter calls it directly and keeps
+        the reply selection itself; protocol v2 hands its verdict to the host. Everything it
+        reads but the flags is in the frame table: no method calls, one attribute lookup."""
         f = ptr8(frame)
-        addr = f[0]
-        if addr >= _REGISTERS:
-            core._reject(addr, _R_UNKNOWN_REGISTER)
-            return _R_UNKNOWN_REGISTER
         t = ptr8(ftab)
-        # The payload against the spec, as Register.check_write judges it.
-        reason = t[_PRE + addr]
-        if reason == _R_NONE and n != t[_WLEN + addr]:
-            reason = _R_LENGTH
+        addr = f[0]
+        flags = 0
+        q_in = 0
+        if addr >= _REGISTERS:
+            reason = _R_UNKNOWN_REGISTER
+        else:
+            # The payload against the spec, as Register.check_write judges it.
+            reason = t[_PRE + addr]
+            if reason == _R_NONE and n != t[_WLEN + addr]:
+                reason = _R_LENGTH
         if reason == _R_NONE:
             kind = t[_CHECK + addr]
             if kind == _CHECK_BYTES:
@@ -124,22 +147,26 @@ def judge_for(core, ftab, queue_buf):
                 if value < (t[o] | (t[o + 1] << 8)) or value > (t[o + 2] | (t[o + 3] << 8)):
                     reason = _R_VALUE
         # Then the joint's state.
-        flags = int(core.flags)
-        q_in = int(core._q_in)
         if reason == _R_NONE:
+            flags = int(core.flags)
+            q_in = t[_Q_IN]
+            stops = t[_STOPS]
             if t[_DISABLED]:
                 reason = _R_DISABLED
-            elif t[_BLOCKS + addr] and bool(core._blocking_live()):
-                reason = _R_BUSY
+            elif t[_BLOCKS + addr] and (
+                    (t[_BLOCK_IN] != t[_BLOCK_OUT] and t[_BLOCK_STOPS] == stops)
+                    or (t[_TASK] and t[_TASK_STOPS] == stops)):
+                reason = _R_BUSY  # a blocking command queued or running, not cancelled by a STOP
             elif (addr != _HOMEOFFSET and addr != _STOP
-                  and ((q_in - int(core._q_out)) & COUNTER_MASK) >= QUEUE_SLOTS):
+                  and ((q_in - t[_Q_OUT]) & 0xFF) >= QUEUE_SLOTS):
                 reason = _R_QUEUE_FULL
             else:
                 # What the joint's state refuses: motion while stalled or not enabled (0 rpm
                 # always goes through), HOME at or below the sensitivity noise floor.
                 refuse = t[_REFUSE + addr]
                 if refuse == _HOMING:
-                    floor = int(core._homing_floor) + ((f[2] * int(core._homing_floor_q)) >> 10)
+                    per_rpm = t[_HOMING_FLOOR_Q] | (t[_HOMING_FLOOR_Q + 1] << 8)
+                    floor = (t[_HOMING_FLOOR] | (t[_HOMING_FLOOR + 1] << 8)) + ((f[2] * per_rpm) >> 10)
                     if f[3] <= floor:
                         reason = _R_HOMING_SENSITIVITY
                 elif refuse == _MOTION:
@@ -149,7 +176,11 @@ def judge_for(core, ftab, queue_buf):
                         elif flags & _FLAG_NOTENABLED:
                             reason = _R_NOT_ENABLED
         if reason != _R_NONE:
-            core._reject(addr, reason)
+            rejects = (t[_REJECTS] | (t[_REJECTS + 1] << 8)) + 1
+            t[_LAST_REASON] = reason
+            t[_LAST_REGISTER] = addr
+            t[_REJECTS] = rejects & 0xFF
+            t[_REJECTS + 1] = (rejects >> 8) & 0xFF
             return reason
         clears = t[_CLEARS + addr]
         before = flags
@@ -159,7 +190,7 @@ def judge_for(core, ftab, queue_buf):
         if flags != before:  # (a store costs an attribute lookup: most commands change nothing)
             core.flags = flags
         if clears & _FLAG_STALL:
-            core.stall_rearms = (int(core.stall_rearms) + 1) & 0xFF
+            t[_REARMS] = (t[_REARMS] + 1) & 0xFF
         if addr == _STOP:
             # Immediate, as in the original's ISR: cancels the running blocking command and any
             # motion still queued; the main loop commands 0 RPM next.
@@ -187,9 +218,9 @@ def judge_for(core, ftab, queue_buf):
             queue[base + SLOT_HALTS] = t[_HALTS]
             queue[base + SLOT_STOPS] = stops
             if t[_BLOCKS + addr]:
-                core._blocking_stops = stops
-                core._blocking_in = (int(core._blocking_in) + 1) & COUNTER_MASK
-            core._q_in = (q_in + 1) & COUNTER_MASK
+                t[_BLOCK_STOPS] = stops
+                t[_BLOCK_IN] = (t[_BLOCK_IN] + 1) & 0xFF
+            t[_Q_IN] = (q_in + 1) & 0xFF
         return _R_NONE
 
     return judge
@@ -208,37 +239,31 @@ class IrqPath:
         self.transactions = (self.transactions + 1) & COUNTER_MASK
 
     @micropython.viper
-    def on_frame(self, frame, n: int):
+    def on_frame(self, frame, n: int) -> int:
         """A write of n bytes (register + payload) ended. `frame` holds at most MAX_FRAME bytes.
         Selects the reply the next read gets: the register's (n == 1, a readable register), else
-        the flags, with ERROR if the frame was rejected."""
+        the flags, with ERROR if the frame was rejected. Returns the judge's reject reason
+        (REJECT_NONE: accepted, a register selection or an address probe)."""
         if n == 0:
-            return  # address probe (bus scan)
+            return _R_NONE  # address probe (bus scan)
         addr = ptr8(frame)[0]
         if n == 1 and addr < _REGISTERS:
             wire = self._wires[addr]
             if wire:
                 self._reply_wire = wire
                 self._reply_err = 0
-                return
+                return _R_NONE
         judge = self.judge
         reason = int(judge(frame, n))
         self._reply_wire = self._flags_wire
         self._reply_err = _FLAG_ERROR if reason else 0
+        return reason
 
-    def _blocking_live(self):
-        """A blocking command is queued or running and no STOP has cancelled it."""
-        if self._blocking_in != self._blocking_out and self._blocking_stops == self.stops:
-            return True
-        return self._task is not None and self._task_stops == self.stops
-
-    def _reject(self, addr, reason):
-        self.rejects = (self.rejects + 1) & 0xFFFF
+    def reject_count(self):
+        """Frames rejected since boot, 16 bits (LASTERROR's count). (No property: a class with one
+        makes MicroPython look in the class on every attribute store, several times slower.)"""
         cache = self._cache[_LASTERROR]
-        cache[0] = reason
-        cache[1] = addr
-        cache[2] = self.rejects & 0xFF
-        cache[3] = self.rejects >> 8
+        return cache[2] | (cache[3] << 8)
 
     @micropython.native
     def reply_into(self, out):

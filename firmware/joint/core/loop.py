@@ -9,7 +9,7 @@ reads are wrapped in `critical` sections, except the float caches: one 32-bit st
 from ..micro import const, micropython
 
 from ..motion.fixed import store_q
-from .irq import FTAB_DISABLED, FTAB_HALTS
+from .irq import FTAB_DISABLED, FTAB_HALTS, FTAB_REARMS, FTAB_TASK
 from ..spec.protocol import FLAG_BUSY, FLAG_NOTENABLED
 
 
@@ -28,7 +28,10 @@ _SLOT_FLAGS = const(5)
 _SLOT_HALTS = const(6)
 _SLOT_STOPS = const(7)
 _MOTION_BLOCKED = const(9)
-_COUNTER_MASK = const(0x1FFFFFFF)
+_FTAB_BLOCK_OUT = const(1540)
+_FTAB_REJECTS = const(1550)
+_FTAB_Q_IN = const(1553)
+_FTAB_Q_OUT = const(1554)
 
 
 class MainLoop:
@@ -45,7 +48,8 @@ class MainLoop:
         here and the rest is called only when it has something to do."""
         # The commands queued before this iteration: one the IRQ queues while it runs (the
         # host's traffic landing in it) waits for the next, so its cost and theirs do not add up.
-        q_in = self._q_in
+        ftab = self._ftab
+        q_in = ftab[_FTAB_Q_IN]
         clock = self.clock
         now = clock.ticks_ms()
         if not self.disabled:
@@ -58,7 +62,7 @@ class MainLoop:
                     self.qd_set = 0
                     self.positioning = False
                 applied = 0
-                while self._q_out != q_in:
+                while ftab[_FTAB_Q_OUT] != q_in:
                     self._apply_next()
                     applied = 1
                 if self._task is not None and (clock.ticks_diff(now, self._task_wake) >= 0
@@ -79,7 +83,7 @@ class MainLoop:
                 # The reply caches, each packed only when its value changed. Work split by rate:
                 # the angle every iteration, the encoder speed every second one, the driver speed
                 # and the PID error every fourth (at most 2 and 4 ms old).
-                last = self._cache_values
+                last = self.reply_values
                 value = hal.angle_moved() + self.zero_offset  # _host_angle(), inlined
                 if value != last[0]:
                     last[0] = value
@@ -105,8 +109,8 @@ class MainLoop:
                     store_q(self._cache[addr], value, q)
             except Exception as exc:
                 self._motor_fault(exc)
-        if self.rejects != self._logged_rejects:
-            self._logged_rejects = self.rejects
+        if self._ftab[_FTAB_REJECTS] != self._logged_rejects:  # (one byte: wraps at 256, not between two passes)
+            self._logged_rejects = self._ftab[_FTAB_REJECTS]
             cache = self._cache[_LASTERROR]
             self.log.warn("rejected a frame for register 0x%02x: %s"
                           % (cache[1], self.registers.reject_string(cache[0])))
@@ -116,6 +120,7 @@ class MainLoop:
         self.disabled = True
         self._ftab[FTAB_DISABLED] = 1  # what the IRQ's judge reads
         self._task = None
+        self._ftab[FTAB_TASK] = 0
         self.task_name = None
         state = self._irq_off()
         self.flags = (self.flags | FLAG_NOTENABLED) & ~FLAG_BUSY
@@ -149,7 +154,8 @@ class MainLoop:
 
     @micropython.native
     def _apply_next(self):
-        q_out = self._q_out
+        ftab = self._ftab
+        q_out = ftab[_FTAB_Q_OUT]
         base = (q_out & _SLOT_MASK) * _SLOT
         queue = self._queue
         addr = queue[base]
@@ -163,10 +169,10 @@ class MainLoop:
                 self._handlers[addr](queue, base + 1)
             else:
                 self.log.info("%s cancelled by STOP before it started" % self.registers.name(addr))
-            self._blocking_out = (self._blocking_out + 1) & _COUNTER_MASK
+            ftab[_FTAB_BLOCK_OUT] = (ftab[_FTAB_BLOCK_OUT] + 1) & 0xFF
         else:
             self._handlers[addr](queue, base + 1)
-        self._q_out = (q_out + 1) & _COUNTER_MASK
+        ftab[_FTAB_Q_OUT] = (q_out + 1) & 0xFF
 
     def _may_move(self):
         return self._motion_allowed
@@ -176,7 +182,7 @@ class MainLoop:
         cleared STALL: `rearms` changed) or spoke (`transactions` changed) since the decision.
         Returns whether it halted."""
         state = self._irq_off()
-        if (rearms >= 0 and rearms != self.stall_rearms
+        if (rearms >= 0 and rearms != self._ftab[FTAB_REARMS]
                 or transactions >= 0 and transactions != self.transactions):
             self._irq_on(state)
             return False

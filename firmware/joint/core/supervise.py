@@ -17,9 +17,12 @@ tracking detector (tracking.py, the encoder no longer following the field);
 
 from ..micro import const, micropython
 from ..motion.fixed import muldiv
+from .irq import FTAB_REARMS
 from ..spec.protocol import FLAG_BUSY, FLAG_NOTENABLED, FLAG_NOTHOMED, FLAG_STALL
 
 
+HOLD_WINDOW = const(15 << 12)  # motor degrees Q12: within this of its target a move is holding ...
+HOLD_RPM = const(30 << 16)  # ... when its driver turns slower than this (rpm Q16)
 ORIGINAL = const(0)
 TRACKING = const(1)
 DETECTOR_NAMES = ("original", "tracking")
@@ -54,7 +57,7 @@ class Supervisor:
         if self.detector != ORIGINAL or not self.stallguard or self.flags & (FLAG_STALL | FLAG_BUSY):
             return
         hal = self.hal
-        rearms = self.stall_rearms
+        rearms = self._ftab[FTAB_REARMS]
         stalled = self.stall.update(hal.pid_error(), hal.encoder_rpm(), self.qd_set)
         if self.trace is not None:
             self.trace(self.stall)
@@ -70,7 +73,7 @@ class Supervisor:
             track.reset()
             return
         hal = self.hal
-        rearms = self.stall_rearms
+        rearms = self._ftab[FTAB_REARMS]
         if track.update(hal.field_position(), self._encoder_usteps()) and self._halt(FLAG_STALL, rearms=rearms):
             hal.stop(True)
             self.log.warn("stall detected (encoder %d usteps behind the field, threshold %d)"
@@ -78,14 +81,29 @@ class Supervisor:
             track.reset()
 
     def _motion_active(self):
-        """What the deadman guards: in watchdog mode every motion; at boot the velocity setpoint."""
+        """What the deadman guards: in watchdog mode every motion the host commanded, and the ramp
+        after it until the motor first stands; at boot the velocity setpoint. A joint holding its
+        position corrects small errors (its driver ramp turns for a sample now and then): that is
+        not motion, so a quiet host never gets a joint disabled that holds still."""
         if not self.watchdog_ms:
             return self.qd_set != 0
-        if self.qd_set != 0 or self.positioning:
+        if self.qd_set != 0 or (self._task is not None and self.task_name != "boot"):
+            self._coasting = True
             return True
-        if self._task is not None and self.task_name != "boot":
+        if (self.positioning or self._coasting) and self.target_known \
+                and abs(self.q_set - self._host_angle()) <= HOLD_WINDOW and abs(self.hal.driver_rpm()) < HOLD_RPM:
+            # A move to an angle that has come within HOLD_WINDOW of it, turning slower than
+            # HOLD_RPM, is holding there (a closed loop can hunt around the target for seconds
+            # before its ramp settles).
+            self._coasting = False
+            return False
+        if self.positioning:
+            self._coasting = True
             return True
-        return self.hal.driver_rpm() != 0
+        if self._coasting and self.hal.driver_rpm() != 0:
+            return True
+        self._coasting = False
+        return False
 
     @micropython.native
     def _check_deadman(self):

@@ -5,9 +5,12 @@ A task holds BUSY while it runs; the main loop steps it when its wait is over (e
 how many milliseconds to wait) or a STOP cancelled it.
 """
 
+import struct
+
 from ..motion.fixed import ANGLE_Q, RPM_Q, muldiv, store_q
-from ..detect.homing import HOMED, OUTCOMES, RUNNING
-from ..spec.protocol import FLAG_BUSY, FLAG_NOTHOMED, FLAG_STALL, HOMINGTRAVEL
+from ..detect.homing import HOMED, RUNNING
+from .irq import FTAB_TASK, FTAB_TASK_STOPS
+from ..spec.protocol import FLAG_BUSY, FLAG_NOTHOMED, FLAG_STALL, HOMING_OUTCOMES, HOMINGRESULT, HOMINGTRAVEL
 from ..detect.tracking import wrapped_diff
 from ..micro import const
 
@@ -30,14 +33,18 @@ def _usteps_to_angle(usteps):
 class Tasks:
     """JointController's blocking commands (mixed into it): generators yielding milliseconds to wait."""
 
-    def _start_task(self, name, task):
-        self._task_stops = self.stops  # before _task: the IRQ reads both
+    def _start_task(self, name, task, stops):
+        """Run `task` for the command accepted in stop epoch `stops` (its queue slot's: a STOP
+        that came after the command cancels the task, even one that came while it was applied)."""
+        ftab = self._ftab
+        ftab[FTAB_TASK_STOPS] = stops  # before FTAB_TASK: the IRQ reads both
+        ftab[FTAB_TASK] = 1
         self.task_name = name
         self._task_wake = self.clock.ticks_ms()
         self._task = task
 
     def _cancelled(self):
-        return self._task_stops != self.stops
+        return self._ftab[FTAB_TASK_STOPS] != self.stops
 
     def _step_task(self, now):
         try:
@@ -53,6 +60,7 @@ class Tasks:
         if not self._cancelled():
             self.flags &= ~FLAG_BUSY
         self._task = None
+        self._ftab[FTAB_TASK] = 0
         self._irq_on(state)
         self.task_name = None
 
@@ -132,13 +140,16 @@ class Tasks:
         hal.set_current(current)
         hal.set_hold_current(current)
         hal.stop(True)
-        yield _HOMING_SETTLE_MS
-        outcome = RUNNING
-        if not self._cancelled():
+        struct.pack_into("<B", self._cache[HOMINGRESULT], 0, RUNNING)  # a reply cache, as handlers.py writes them
+        clock = self.clock
+        # The encoder's own word on its magnet first (the AS5600's status), then the settle.
+        outcome = monitor.check_magnet(hal.magnet())
+        if outcome == RUNNING:
+            outcome = yield from self._rest_check()
+        if outcome == RUNNING and not self._cancelled():
             hal.set_rpm((speed if direction else -speed) << RPM_Q)
             monitor.start(1 if direction else -1, speed, sensitivity, hal.field_position(),
                           self._encoder_usteps())
-            clock = self.clock
             every = monitor.sample_ms
             start = clock.ticks_ms()
             due = clock.ticks_add(start, every)
@@ -168,10 +179,27 @@ class Tasks:
         else:
             self._set_flags(FLAG_NOTHOMED)
             self.log.warn("homing ended, not homed: %s" % ("aborted by STOP" if outcome == RUNNING
-                                                          else OUTCOMES[outcome]))
+                                                          else HOMING_OUTCOMES[outcome]))
+        struct.pack_into("<B", self._cache[HOMINGRESULT], 0, outcome)
         hal.set_current(self.drive_current)
         hal.set_hold_current(self.hold_current)
         self.track.reset()
+
+    def _rest_check(self):
+        """The homing's settle, doubling as a check in its second half (the first lets a link that
+        fell while the coils were off be caught): the encoder's jumps while the motor holds. The
+        outcome so far: RUNNING, NOISY or MOVING."""
+        clock = self.clock
+        monitor = self.homing
+        yield _HOMING_SETTLE_MS // 2
+        start = clock.ticks_ms()
+        monitor.rest(self._encoder_usteps(), True)
+        while clock.ticks_diff(clock.ticks_ms(), start) < _HOMING_SETTLE_MS // 2 and not self._cancelled():
+            yield 1
+            monitor.rest(self._encoder_usteps(), False)
+        if not self._cancelled() and monitor.noisy():
+            return monitor.outcome
+        return RUNNING
 
     def _settle(self):
         """Wait (at most _SETTLE_MAX_MS) until the encoder has moved less than _REST_USTEPS in

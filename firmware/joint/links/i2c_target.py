@@ -139,7 +139,11 @@ def _handler(s, core, k, flags_of):
         if event == IRQ_WRITE_REQ:
             buf = k[length if length < _MAX_FRAME else _MAX_FRAME]
             got = int(target.readinto(buf))
-            if length == 0 and got:
+            if not got:
+                # An RX_FULL in the snapshot whose bytes END_WRITE took (rp2 handles the repeated
+                # START first): nothing arrived, and the frame it would size is closed.
+                return
+            if length == 0:
                 st[_S_ADDR] = ptr8(buf)[0]
             length += got
             st[_S_LEN] = length

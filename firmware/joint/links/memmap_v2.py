@@ -5,22 +5,25 @@ the switch between the legacy register map and v2.
 `mem` with no Python while SCL is held. Each `poll()`:
 
 1. packs the next state block into a staging buffer (integers only: the position and velocity are
-   the legacy ANGLEMOVED / GETENCODERRPM reply caches, converted from their float32 bits);
+   the values behind the legacy ANGLEMOVED / GETENCODERRPM reply caches, `core.reply_values`,
+   rescaled from Q12 / Q16);
 2. swaps, in one short critical section entered only while no transaction is in progress (the
    peripheral's activity bit, checked before and inside it: interrupts held off across the end
-   of a write phase shift the rp2 transfer): takes the mailbox out and marks it empty, notes
+   of a write phase shift the rp2 transfer): takes the last frame out of the inbox, where the
+   END_WRITE handler moved the mailbox each write left (emptying it, so the next write lands on an
+   empty mailbox and two writes are never judged as one frame, whatever the loop's timing), notes
    whether the host wrote past it into the state block, and publishes the staged block. A read
    therefore always sees one whole block, and the mailbox is never taken half-written;
 3. judges the frame it took: framing, CRC, sequence number, then the legacy register's own checks
-   through the core (`on_frame`), exactly as a legacy write of that register would be judged. The
-   verdict and the new `ack` go out with the next swap, in the same poll.
+   by the core's judge (`core.judge`), exactly as a legacy write of that register is judged; its
+   reject reason is the verdict. The verdict and the new `ack` go out with the next swap, in the
+   same poll.
 
 Allocation-free once constructed (tests run it with the heap locked under MicroPython).
 """
 
 import gc
 
-from ..spec.protocol import ANGLEMOVED, GETENCODERRPM, LASTERROR
 from ..spec.protocol_v2 import (  # numbers and tables only: the board forgets protocol_v2 after boot
     CRC_TABLE, CMD_NONE, FROM_LEGACY, MAILBOX, MAILBOX_SIZE, MEM_SIZE, M_CMD, M_CRC, M_PAYLOAD,
     M_SEQ, PAYLOAD_SIZE, POSITION_MAX, POSITION_Q, PROTOCOL_LEGACY, PROTOCOL_V2, REASON_COMMAND,
@@ -28,7 +31,7 @@ from ..spec.protocol_v2 import (  # numbers and tables only: the board forgets p
     SEQ_WINDOW, SILENCE_MS, STATE, STATE_SIZE, STATUS_FLAGS, STATUS_MARKER, S_ACK, S_CRC,
     S_POSITION, S_VELOCITY, VELOCITY_MARKER, VELOCITY_MAX, VELOCITY_Q,
 )
-from ..motion.fixed import f32_to_q
+from ..motion.fixed import ANGLE_Q, RPM_Q, rescale
 from .i2c_target import IRQ_END_WRITE
 from ..core.irq import COUNTER_MASK  # counters wrap before they would become long ints
 from ..spec.regtable import NOT_A_COMMAND
@@ -37,16 +40,6 @@ from ..micro import const
 _EMPTY_CMD = const(0xFF)  # no register 0xFF: a mailbox the host has not written since the swap
 _EMPTY_SEQ = const(0x80)  # bit 7 set: never a sequence number the host sends
 _ROOM = const(16384)  # bytes free before a protocol switch (its allocations take about 1 KB)
-
-
-def f32_to_fixed(buf, off, q, limit):
-    """round(float32 at buf[off:] x 2**q), saturated to +/-limit. Integer arithmetic only."""
-    value = f32_to_q(buf, off, q)
-    if value > limit:
-        return limit
-    if value < -limit:
-        return -limit
-    return value
 
 
 def _mailbox_crc(buf, address):
@@ -86,11 +79,13 @@ class MemLink:
             self._empty[i] = _EMPTY_CMD
         self._empty[M_SEQ] = _EMPTY_SEQ
         self._rx = bytearray(MAILBOX_SIZE)
+        self._inbox = bytearray(self._empty)  # the last write, taken from the mailbox at its END_WRITE
         self._last = bytearray(self._empty)  # the last frame accepted (retries are ignored)
         self._staged = bytearray(STATE_SIZE)
         self._published = bytearray(STATE_SIZE)
         self._seen_state = bytearray(STATE_SIZE)
         self._frame = bytearray(1 + PAYLOAD_SIZE)
+        self._judge_command = core.judge  # the legacy register's checks: returns the reject reason
         self._mailbox[:] = self._empty
         self.ack = 0
         self.verdict = REASON_OK
@@ -124,7 +119,13 @@ class MemLink:
             self.target = None
 
     def _count_write(self, target):
+        """END_WRITE (soft IRQ): count the write and take the mailbox it wrote, leaving it empty,
+        so the next write lands on an empty mailbox (a short one then fails its framing) and each
+        frame judged is one write, however many writes come in one main-loop pass. A frame not
+        judged yet is replaced: the newest wins, as in the mailbox before."""
         self.writes = (self.writes + 1) & COUNTER_MASK
+        self._inbox[:] = self._mailbox
+        self._mailbox[:] = self._empty
 
     # ---- main loop ----
 
@@ -160,8 +161,8 @@ class MemLink:
             self._irq_on(state)
             return -1
         self._seen_state[:] = self._state
-        self._rx[:] = self._mailbox
-        self._mailbox[:] = self._empty
+        self._rx[:] = self._inbox
+        self._inbox[:] = self._empty
         self._state[:] = self._staged
         self._irq_on(state)
         overflow = self._seen_state != self._published
@@ -215,20 +216,16 @@ class MemLink:
         frame[0] = cmd
         for i in range(n):
             frame[1 + i] = rx[M_PAYLOAD + i]
-        core = self._core
-        before = core.rejects
-        core.on_frame(frame, 1 + n)
-        if core.rejects == before:
-            return REASON_OK
-        return FROM_LEGACY[core.cached_reply(LASTERROR)[0]]
+        return FROM_LEGACY[self._judge_command(frame, 1 + n)]
 
     def _pack(self):
         core = self._core
         out = self._staged
         out[0] = (STATUS_MARKER | (self.verdict << REASON_SHIFT)
                   | (core.flags & STATUS_FLAGS))
-        pos = f32_to_fixed(core.cached_reply(ANGLEMOVED), 0, POSITION_Q, POSITION_MAX)
-        vel = f32_to_fixed(core.cached_reply(GETENCODERRPM), 0, VELOCITY_Q, VELOCITY_MAX)
+        values = core.reply_values
+        pos = rescale(values[0], ANGLE_Q - POSITION_Q, POSITION_MAX)
+        vel = rescale(values[1], RPM_Q - VELOCITY_Q, VELOCITY_MAX)
         p = S_POSITION - STATE
         out[p] = pos & 0xFF
         out[p + 1] = (pos >> 8) & 0xFF

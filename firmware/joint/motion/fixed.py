@@ -103,6 +103,17 @@ def store_q(buf, n: int, q: int):
     p[0] = (m & 0x7FFFFF) | (e << 23) | (sign << 31)
 
 
+def rescale(value, shift, limit):
+    """round(value / 2**shift), half away from zero (as f32_to_q rounds), saturated to +-limit:
+    a Q(n) value in Q(n - shift), for shift >= 1."""
+    half = 1 << (shift - 1)
+    if value >= 0:
+        value = (value + half) >> shift
+        return limit if value > limit else value
+    value = (half - value) >> shift
+    return -limit if value > limit else -value
+
+
 def to_q(value, q):
     """round(value * 2**q) of a Python number (configuration time only: may allocate)."""
     scaled = value * (1 << q)

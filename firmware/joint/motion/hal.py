@@ -24,6 +24,13 @@ FULL_STEPS_PER_REV = 200
 MICROSTEPS = 256
 USTEPS_PER_REV = FULL_STEPS_PER_REV * MICROSTEPS
 
+# The encoder magnet's health, as the sensor reports it (`MotorHAL.magnet`); the order is that of
+# homing.py's outcomes NO_MAGNET, WEAK_MAGNET, STRONG_MAGNET.
+MAGNET_OK = 0
+MAGNET_MISSING = 1  # no magnet detected, or the sensor did not answer
+MAGNET_WEAK = 2  # too far from the sensor: the angle is noisy
+MAGNET_STRONG = 3  # too close: the sensor saturates
+
 
 class MotorHAL:
     """Interface of a joint motor backend. Subclasses implement every method."""
@@ -110,6 +117,12 @@ class MotorHAL:
 
     def position_reached(self):
         """True when a positioning move has arrived (False in velocity mode while moving)."""
+        raise NotImplementedError
+
+    def magnet(self):
+        """The encoder magnet's health as the sensor reports it: MAGNET_OK, MAGNET_MISSING,
+        MAGNET_WEAK or MAGNET_STRONG. May read the sensor over its bus (tens of microseconds):
+        for the tasks (a HOME's start), not for the 1 kHz path; allocates nothing."""
         raise NotImplementedError
 
     def field_position(self):

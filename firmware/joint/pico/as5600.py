@@ -27,6 +27,7 @@ from array import array
 
 from ..micro import const, micropython, ptr32, ptr8
 from ..motion.fixed import state_word
+from ..motion.hal import MAGNET_MISSING, MAGNET_OK, MAGNET_STRONG, MAGNET_WEAK
 
 ADDRESS = const(0x36)
 CONF = const(0x07)
@@ -67,6 +68,17 @@ def conf_word(slow_filter, fast_threshold):
 def decode_status(status):
     """(detected, too_weak, too_strong) from the STATUS byte."""
     return bool(status & _MD), bool(status & _ML), bool(status & _MH)
+
+
+def magnet_health(status):
+    """The STATUS byte as hal.py's MAGNET_* code (no tuple: the HOME task calls it)."""
+    if not status & _MD:
+        return MAGNET_MISSING
+    if status & _ML:
+        return MAGNET_WEAK
+    if status & _MH:
+        return MAGNET_STRONG
+    return MAGNET_OK
 
 
 def unwrap(prev, raw):

@@ -27,11 +27,11 @@ Default wiring (motor_config.DEFAULT_PINS; the joint bus target is I2C0 on GP4 S
 from ..micro import const, micropython, ptr32
 
 from ..motion.fixed import muldiv
-from ..motion.hal import MotorHAL
+from ..motion.hal import MAGNET_MISSING, MotorHAL
 from ..motion.tickramp import POSITIONING, VELOCITY_NEG, run_ramp
 from ..motion.velocity import update_velocity
 from . import tmc2209 as tmc
-from .as5600 import decode_status
+from .as5600 import decode_status, magnet_health
 from .as5600 import next_sample as _enc_next
 from .stepgen import issue_steps, poll_steps
 
@@ -339,6 +339,14 @@ class PicoStepper(MotorHAL):
     def driver_position(self):
         """Usteps of pulses that have reached the driver (XACTUAL of the uStepper)."""
         return self._steps.position
+
+    def magnet(self):
+        """The AS5600's STATUS bits (MD, ML, MH) as a MAGNET_* code; a sensor that does not
+        answer reports no magnet. One blocking read: the next sample re-aims the pointer."""
+        try:
+            return magnet_health(self._enc.status())
+        except OSError:
+            return MAGNET_MISSING
 
     def diagnostics(self):
         """Driver and encoder health (reads both buses; for the debug console, not the loop)."""

@@ -90,5 +90,8 @@ class FixedPointHAL(MotorHAL):
     def position_reached(self):
         return self.motor.position_reached()
 
+    def magnet(self):
+        return self.motor.magnet()
+
     def field_position(self):
         return self.motor.field_position()

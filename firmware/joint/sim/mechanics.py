@@ -28,25 +28,31 @@ MOTOR = {"holding_torque": 0.45, "rotor_inertia": 6.8e-6, "coulomb": 0.005, "dam
 # kg*m^2 (J2: the moving mass, kg); payload lever arm, m (inertia += payload * lever^2); the
 # transmission's stiffness (N*m/rad; J2: N/m axial) and damping ratio; backlash in motor degrees;
 # friction at the joint (N*m; J2: screw thread friction coefficient); the end stop's contact
-# stiffness (N*m/rad; J2: N/m) and damping ratio; a soft obstacle's stiffness (same units): the
-# softest body region of ISO/TS 15066 (abdomen, 10 N/mm) met at the gripper (J1 0.614 m, J3
-# 0.285 m from the axis; J4 at a 0.04 m jaw).
+# stiffness (N*m/rad; J2: N/m) and damping ratio. Body regions (ISO_TS_15066) are met at the
+# gripper (CONTACT_RADIUS: J1 0.614 m, J3 0.285 m from the axis; J4 at a 0.04 m jaw).
 ARM = {
     "J1": {"reduction": 35.0, "inertia": 0.19, "lever": 0.614, "stiffness": 1500.0, "zeta": 0.1,
-           "backlash_deg": 0.5, "friction": 0.05, "stop": 5000.0, "stop_zeta": 0.2, "soft": 1e4 * 0.614 ** 2},
+           "backlash_deg": 0.5, "friction": 0.05, "stop": 5000.0, "stop_zeta": 0.2},
     "J2": {"reduction": 2.0 * math.pi / 0.004, "mass": 1.5, "stiffness": 3.7e6, "zeta": 0.1,
            "backlash_deg": 4.5, "screw_mu": 0.1, "screw_d": 0.007, "extra_inertia": 1.3e-6,
-           "stop": 1e6, "stop_zeta": 0.2, "soft": 1e4},
+           "stop": 1e6, "stop_zeta": 0.2},
     "J3": {"reduction": 24.0, "inertia": 0.030, "lever": 0.285, "stiffness": 600.0, "zeta": 0.1,
-           "backlash_deg": 0.5, "friction": 0.03, "stop": 3000.0, "stop_zeta": 0.2, "soft": 1e4 * 0.285 ** 2},
+           "backlash_deg": 0.5, "friction": 0.03, "stop": 3000.0, "stop_zeta": 0.2},
     "J4": {"reduction": 12.0, "inertia": 3.0e-4, "lever": 0.02, "stiffness": 150.0, "zeta": 0.1,
-           "backlash_deg": 1.0, "friction": 0.01, "stop": 1000.0, "stop_zeta": 0.2, "soft": 1e4 * 0.04 ** 2},
+           "backlash_deg": 1.0, "friction": 0.01, "stop": 1000.0, "stop_zeta": 0.2},
 }
 
-# Where an obstacle at the gripper is met, m from the axis (J2 moves linearly), and ISO/TS 15066's
-# quasi-static force limit for the abdomen (Annex A), the body region of the soft obstacle.
+# Where an obstacle at the gripper is met, m from the axis (J2 moves linearly).
 CONTACT_RADIUS = {"J1": 0.614, "J3": 0.285, "J4": 0.04}
-ISO_ABDOMEN_N = 110.0
+# ISO/TS 15066:2016 Annex A, per body region: effective spring constant (N/mm, Table A.3) and
+# quasi-static force limit (N, Table A.2), as transcribed in reference/safety-facts.md.
+ISO_TS_15066 = {
+    "hand": (75.0, 140.0),
+    "lower_arm": (40.0, 160.0),
+    "chest": (25.0, 140.0),
+    "abdomen": (10.0, 110.0),
+}
+ISO_ABDOMEN_N = ISO_TS_15066["abdomen"][1]
 
 # Encoder error figures. TLE5012B: overall angle error 1.0 deg at 25 C, 1.9 deg over -40..125 C
 # (TLI5012B E1000 datasheet table 4-9; TLE5012B: "max. 1.0 deg ... with auto-calibration"),
@@ -87,7 +93,16 @@ def _reflect(joint, payload_kg):
     c = 2.0 * a["zeta"] * math.sqrt(k * jl)
     ks = a["stop"] / n2
     cs = 2.0 * a["stop_zeta"] * math.sqrt(ks * jl)
-    return jl, k, c, friction, torque, ks, cs, a["soft"] / n2
+    return jl, k, c, friction, torque, ks, cs, region_stiffness(joint, "abdomen")
+
+
+def region_stiffness(joint, region):
+    """A body region's ISO/TS 15066 spring (N/mm) met at the gripper (J2: at the nut), as a
+    motor-side torsional stiffness, N*m/rad: k * r^2 / N^2 (J2: k / N^2, N in rad/m)."""
+    k = ISO_TS_15066[region][0] * 1000.0
+    n = ARM[joint]["reduction"]
+    lever = 1.0 if joint == "J2" else CONTACT_RADIUS[joint]
+    return k * lever * lever / (n * n)
 
 
 def stepper_kwargs(joint, payload_kg=0.0, noise="nominal", encoder="tle5012b"):
@@ -118,11 +133,13 @@ def stepper_kwargs(joint, payload_kg=0.0, noise="nominal", encoder="tle5012b"):
 
 def stop_stiffness(joint, kind="rigid", payload_kg=0.0):
     """(stiffness N*m/rad, damping N*m*s/rad) on the motor side of an obstacle: "rigid" (the end
-    stop block's contact) or "soft" (a person: ISO/TS 15066's softest region), damping ratio 0.2."""
-    jl, _, _, _, _, ks, cs, soft = _reflect(joint, payload_kg)
+    stop block's contact), a body region of ISO_TS_15066, or "soft" (its softest, the abdomen);
+    damping ratio 0.2."""
+    jl, _, _, _, _, ks, cs, _ = _reflect(joint, payload_kg)
     if kind == "rigid":
         return ks, cs
-    return soft, 2.0 * ARM[joint]["stop_zeta"] * math.sqrt(soft * jl)
+    k = region_stiffness(joint, "abdomen" if kind == "soft" else kind)
+    return k, 2.0 * ARM[joint]["stop_zeta"] * math.sqrt(k * jl)
 
 
 def contact_force_n(joint, torque):

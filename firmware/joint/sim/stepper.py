@@ -13,10 +13,12 @@ a dead band (belt or lead-screw compliance, backlash); the load carries its own 
 torque (gravity on a vertical axis) and the walls. Without one the walls act on the rotor itself.
 Sub-steps are laid on the ISR grid, as many per ISR period as the slip speed and the electrical
 stiffness need (one to a few in synchronous running, more while slipping), and none while
-everything rests. Coupling, viscous and wall forces are integrated implicitly (backward Euler, a
-2x2 solve per sub-step), so a wall or a coupling of any stiffness and damping stays stable and
-never throws the rotor back; the magnetic torque and friction are explicit. Walls are one-sided
-springs, damped only while being compressed.
+everything rests. The magnetic torque and the coupling spring are explicit (symplectic Euler, no
+numerical damping; sub-stepped to omega*h <= 0.4), the coupling damper and viscous terms use the
+trapezoidal rule (no numerical damping), so the link rings and decays as its equations say
+(bench/sim_reference.py checks it against scipy's solve_ivp within 2 %); the walls are implicit
+(backward Euler, a 2x2 solve per sub-step), so a wall of any stiffness and damping stays stable
+and never throws the rotor back. Walls are one-sided springs, damped only while being compressed.
 
 Frames: R (rotor) and F (field) are mechanical usteps in the physical frame, 0 = rotor angle at
 construction; the field advances by wiring_sign * (shaft ? -1 : 1) per driver ustep. The load L is
@@ -40,6 +42,11 @@ Simulator hooks (not part of MotorHAL):
     set_load_torque(nm)            external torque on the load (on top of the constant load_torque);
                                    positive pushes toward negative angles
     driver_position()              XACTUAL, usteps
+    weaken_magnet(noise_factor=20, harmonics_deg=(20.0, 10.0), reports=MAGNET_WEAK)
+                                   the fault mode of ustepper-model.md 8.3: encoder noise x factor and
+                                   a large harmonic error (a weak or displaced magnet); the sensor's
+                                   status then says `reports` (hal.MAGNET_*: MAGNET_MISSING for a
+                                   magnet gone, MAGNET_OK for a marginal one its status misses)
 Walls belong on the side the load is not on: one placed behind it pushes it out like a
 compressed spring. A collision of the arm seen through the joint reduction N is far softer than
 the same contact on the motor shaft (joint stiffness / N^2); mechanics.py has the arm's values.
@@ -51,7 +58,7 @@ true ramp speed, not the library's 0.596x figure.
 
 import math
 
-from ..motion.hal import MotorHAL
+from ..motion.hal import MAGNET_OK, MAGNET_WEAK, MotorHAL
 from .ramp import Ramp, POSITIONING, VELOCITY_POS, VELOCITY_NEG
 from ..motion.velocity import VelocityEstimator
 
@@ -78,7 +85,7 @@ _POWERDOWN_S = (2 ** 20 + 20 * 2 ** 18) / 10e6
 # Physics resolution: field-rotor slip per sub-step (usteps), and omega_n * h per sub-step.
 _SLIP_PER_SUBSTEP = 100.0
 _WN_H = 0.4
-_WN_H_CPL = 0.8  # the coupling and walls are implicit: sub-stepped for accuracy only
+_WN_H_CPL = 0.4  # the coupling spring is explicit: stable below 2, frequency within 0.7 % here
 _MAX_WALL_SUBSTEPS = 8
 _WALL_MARGIN = 64.0  # usteps: closer than this (plus a tick of travel) counts as touching a wall
 _FAR = 1e30
@@ -153,57 +160,60 @@ class SimStepper(MotorHAL):
                  backlash=0.0, load_damping=0.0, load_friction=0.0, load_torque=0.0):
         self._clock = clock
         self._rng = rng = _Rng(seed)
-        # Physics in usteps: torque (N*m) times _g is an angular acceleration in usteps/s^2.
+        # Physics in usteps (ustepper-model.md 8.4 Level 2, divided by the inertia): a torque (N*m)
+        # times _accel_per_nm is the rotor's angular acceleration in usteps/s^2; *_rate terms are
+        # damping (N*m*s/rad) per inertia, 1/s; coupling_stiffness_* stiffness per inertia, 1/s^2.
         g = _USTEPS_PER_RAD / inertia
-        self._g = g
-        self._acc_full = g * holding_torque
-        self._visc = damping / inertia
-        self._brake_visc = brake_damping / inertia
-        self._fric = g * coulomb
-        self._emf = _RAD_PER_USTEP / corner_speed
-        self._wiring = 1 if wiring_sign >= 0 else -1
+        self._accel_per_nm = g
+        self._field_accel_full = g * holding_torque
+        self._rotor_damping_rate = damping / inertia
+        self._brake_damping_rate = brake_damping / inertia
+        self._rotor_friction_accel = g * coulomb
+        self._backemf_per_speed = _RAD_PER_USTEP / corner_speed
+        self._wiring_sign = 1 if wiring_sign >= 0 else -1
         # The load: with none, the walls and the load torque act on the rotor itself.
-        self._two = load_inertia > 0.0
-        jl = load_inertia if self._two else inertia
-        self._gl = _USTEPS_PER_RAD / jl
-        self._kr = coupling_stiffness / inertia
-        self._cr = coupling_damping / inertia
-        self._kl = coupling_stiffness / jl
-        self._cl = coupling_damping / jl
-        self._gap = 0.5 * backlash * _ANGLE_TO_STEP
-        self._visc_l = load_damping / jl
-        self._fric_l = self._gl * load_friction
-        self._ncpl = (1 + int(_T_ISR * math.sqrt(coupling_stiffness * (1.0 / inertia + 1.0 / jl)) / _WN_H_CPL)
-                      if self._two else 1)
-        self._wall = (wall_stiffness / jl, wall_damping / jl)
-        self._jl = jl
-        self._R = 0.0
-        self._W = 0.0
+        self._has_load = load_inertia > 0.0
+        jl = load_inertia if self._has_load else inertia
+        self._load_accel_per_nm = _USTEPS_PER_RAD / jl
+        self._coupling_stiffness_rotor = coupling_stiffness / inertia
+        self._coupling_damping_rotor = coupling_damping / inertia
+        self._coupling_stiffness_load = coupling_stiffness / jl
+        self._coupling_damping_load = coupling_damping / jl
+        self._backlash_half = 0.5 * backlash * _ANGLE_TO_STEP
+        self._load_damping_rate = load_damping / jl
+        self._load_friction_accel = self._load_accel_per_nm * load_friction
+        coupling_wn = math.sqrt(coupling_stiffness * (1.0 / inertia + 1.0 / jl))  # rad/s
+        self._coupling_substeps = 1 + int(_T_ISR * coupling_wn / _WN_H_CPL) if self._has_load else 1
+        self._end_stop_rates = (wall_stiffness / jl, wall_damping / jl)
+        self._load_inertia = jl
+        self._rotor = 0.0
+        self._rotor_speed = 0.0
         self._field = 0.0  # usteps the driver has stepped since begin(), without XACTUAL relabels
-        self._L = 0.0
-        self._V = 0.0
-        self._F = 0.0
-        self._gravity = load_torque
-        self._ext = 0.0
-        self._load = self._gl * load_torque
+        self._load_pos = 0.0
+        self._load_speed = 0.0
+        self._field_angle = 0.0
+        self._load_torque_nm = load_torque
+        self._external_torque_nm = 0.0
+        self._load_torque_accel = self._load_accel_per_nm * load_torque
         self._stops = (-_FAR, _FAR)
         self._obstacles = []
-        self._lo = -_FAR
-        self._hi = _FAR
+        self._low_wall = -_FAR
+        self._high_wall = _FAR
         self._walls()
         # Encoder: magnet offset and harmonic error phases are properties of this board.
-        self._cpr = float(counts_per_rev)
-        self._cpu = self._cpr / _USTEPS_PER_REV  # counts per ustep
-        self._upc = _USTEPS_PER_REV / self._cpr  # usteps per count (the closed loop's conversion)
-        self._mag = rng.uniform() * self._cpr
-        cpd = self._cpr / 360.0
-        self._h1 = enc_harmonics[0] * cpd
-        self._h2 = enc_harmonics[1] * cpd
-        self._p1 = 2.0 * math.pi * rng.uniform()
-        self._p2 = 2.0 * math.pi * rng.uniform()
-        self._sigma = enc_sigma
-        self._skip_p = isr_skip_prob
-        self._fail_p = enc_fail_prob
+        self._counts_per_rev = float(counts_per_rev)
+        self._counts_per_ustep = self._counts_per_rev / _USTEPS_PER_REV
+        self._usteps_per_count = _USTEPS_PER_REV / self._counts_per_rev  # the closed loop's conversion
+        self._magnet_offset = rng.uniform() * self._counts_per_rev
+        cpd = self._counts_per_rev / 360.0
+        self._harmonic1_counts = enc_harmonics[0] * cpd
+        self._harmonic2_counts = enc_harmonics[1] * cpd
+        self._harmonic1_phase = 2.0 * math.pi * rng.uniform()
+        self._harmonic2_phase = 2.0 * math.pi * rng.uniform()
+        self._noise_counts = enc_sigma
+        self._magnet = MAGNET_OK  # what the sensor's status says (weaken_magnet)
+        self._isr_skip_prob = isr_skip_prob
+        self._enc_fail_prob = enc_fail_prob
         # The ISR grid runs from construction at a random phase, so the firmware's polling is
         # free-running against it.
         self._t_next = clock.ticks_us() + _T_ISR_US * rng.uniform()
@@ -221,7 +231,7 @@ class SimStepper(MotorHAL):
         ramp.xtarget = 0
         ramp.vmax = 0.0
         self._drv_xtarget = 0
-        self._fdir = self._wiring
+        self._field_dir = self._wiring_sign
         self._irun = 13
         self._ihold = 13
         self._freewheel = 2
@@ -234,9 +244,9 @@ class SimStepper(MotorHAL):
         self._stop_hard = False
         self._pending_vmax = False
         self._pending_acc = False
-        self._cl = False
-        self._thr = 10.0
-        self._pid = 0
+        self._closed_loop = False
+        self._control_threshold = 10.0
+        self._pid_error = 0
         self._counts = 0
         self._home_raw = self._raw()
         self._est.reset()
@@ -253,27 +263,29 @@ class SimStepper(MotorHAL):
     # ---- driver/encoder internals ------------------------------------------------------------
     def _raw(self):
         """One encoder reading: unwrapped raw counts (angle + systematic error + noise)."""
-        r = self._R * _RAD_PER_USTEP
-        c = (self._R * self._cpu + self._mag + self._h1 * math.sin(r + self._p1)
-             + self._h2 * math.sin(2.0 * r + self._p2))
-        if self._sigma:
-            c += self._sigma * self._rng.gauss()
+        r = self._rotor * _RAD_PER_USTEP
+        c = (self._rotor * self._counts_per_ustep + self._magnet_offset
+             + self._harmonic1_counts * math.sin(r + self._harmonic1_phase)
+             + self._harmonic2_counts * math.sin(2.0 * r + self._harmonic2_phase))
+        if self._noise_counts:
+            c += self._noise_counts * self._rng.gauss()
         return math.floor(c)
 
     def _currents(self):
         if not self._powered:
-            self._a_run = self._a_hold = 0.0
-            self._visc_hold = self._visc
+            self._run_accel = self._hold_accel = 0.0
+            self._hold_damping_rate = self._rotor_damping_rate
         else:
-            self._a_run = self._acc_full * (self._irun + 1) / 32.0
+            self._run_accel = self._field_accel_full * (self._irun + 1) / 32.0
             if self._ihold == 0 and self._freewheel:
-                self._a_hold = 0.0
-                self._visc_hold = self._visc + (self._brake_visc if self._freewheel >= 2 else 0.0)
+                self._hold_accel = 0.0
+                brake = self._brake_damping_rate if self._freewheel >= 2 else 0.0
+                self._hold_damping_rate = self._rotor_damping_rate + brake
             else:
-                self._a_hold = self._acc_full * (self._ihold + 1) / 32.0
-                self._visc_hold = self._visc
-        a = max(self._a_run, self._a_hold)
-        self._nmin = 1 + int(_T_ISR * math.sqrt(a * _KE) / _WN_H)
+                self._hold_accel = self._field_accel_full * (self._ihold + 1) / 32.0
+                self._hold_damping_rate = self._rotor_damping_rate
+        a = max(self._run_accel, self._hold_accel)
+        self._min_substeps = 1 + int(_T_ISR * math.sqrt(a * _KE) / _WN_H)
 
     def _write_accel(self):
         self._ramp.amax = min(int(self._max_acc), _AMAX_REG_LIMIT) * _AREG
@@ -321,22 +333,26 @@ class SimStepper(MotorHAL):
         sin = math.sin
         floor = math.floor
         T = _T_ISR
-        two = self._two
-        R, W, L, V, F = self._R, self._W, self._L, self._V, self._F
-        lo, hi = self._lo, self._hi
-        klo, clo = self._wlo
-        khi, chi = self._whi
-        load, fric, emf = self._load, self._fric, self._emf
-        kr, cr, kl, cl, gap = self._kr, self._cr, self._kl, self._cl, self._gap
-        visc_l, fric_l = self._visc_l, self._fric_l
+        has_load = self._has_load
+        # The state in ustepper-model.md 8.4's symbols: R rotor, F field (usteps), W rotor speed;
+        # L load, V load speed (usteps, usteps/s, motor side). Rates are per inertia (1/s^2, 1/s).
+        R, W, L, V, F = self._rotor, self._rotor_speed, self._load_pos, self._load_speed, self._field_angle
+        lo, hi = self._low_wall, self._high_wall
+        klo, clo = self._low_wall_rates
+        khi, chi = self._high_wall_rates
+        load, fric, emf = self._load_torque_accel, self._rotor_friction_accel, self._backemf_per_speed
+        k_rotor, c_rotor = self._coupling_stiffness_rotor, self._coupling_damping_rotor
+        k_load, c_load, gap = self._coupling_stiffness_load, self._coupling_damping_load, self._backlash_half
+        visc_load, fric_load = self._load_damping_rate, self._load_friction_accel
         since = self._since_step
         field = self._field
         isr_on = self._powered
-        cl_on, thr, counts = self._cl, self._thr, self._counts
-        pid, home = self._pid, self._home_raw
-        skip_p, fail_p, sigma = self._skip_p, self._fail_p, self._sigma
-        mag, h1, h2, p1, p2 = self._mag, self._h1, self._h2, self._p1, self._p2
-        cpu, upc = self._cpu, self._upc
+        cl_on, thr, counts = self._closed_loop, self._control_threshold, self._counts
+        pid, home = self._pid_error, self._home_raw
+        skip_p, fail_p, sigma = self._isr_skip_prob, self._enc_fail_prob, self._noise_counts
+        mag, h1, h2 = self._magnet_offset, self._harmonic1_counts, self._harmonic2_counts
+        p1, p2 = self._harmonic1_phase, self._harmonic2_phase
+        cpu, upc = self._counts_per_ustep, self._usteps_per_count
         r_enc = None  # rotor position of the cached noise-free encoder reading c_enc
         c_enc = 0.0
         while t_next <= now:
@@ -350,68 +366,72 @@ class SimStepper(MotorHAL):
                     self._finish_stop()
             if dx != 0.0:
                 since = 0.0
-                va = self._a_run
-                visc = self._visc
+                va = self._run_accel
+                visc = self._rotor_damping_rate
             else:
                 since += T
                 if since < _POWERDOWN_S:
-                    va = self._a_run
-                    visc = self._visc
+                    va = self._run_accel
+                    visc = self._rotor_damping_rate
                 else:
-                    va = self._a_hold
-                    visc = self._visc_hold
+                    va = self._hold_accel
+                    visc = self._hold_damping_rate
             field += dx
-            vf = self._fdir * dx / T
+            vf = self._field_dir * dx / T
             # Mechanics: skipped while everything and the field rest, held by friction.
             moving = W != 0.0 or V != 0.0 or vf != 0.0
             if not moving:
-                x = L if two else R
+                x = L if has_load else R
                 wall = khi * (x - hi) if x > hi else (klo * (x - lo) if x < lo else 0.0)
                 net = va * sin(_KE * (F - R))
-                if two:
+                if has_load:
                     d = R - L
                     tw = d - gap if d > gap else (d + gap if d < -gap else 0.0)
-                    net -= kr * tw
-                    net_l = kl * tw - load - wall
+                    net -= k_rotor * tw
+                    net_l = k_load * tw - load - wall
                 else:
                     net -= load + wall
                     net_l = 0.0
-                moving = not (-fric <= net <= fric and -fric_l <= net_l <= fric_l)
+                moving = not (-fric <= net <= fric and -fric_load <= net_l <= fric_load)
             if moving:
-                n = self._nmin + int(abs(vf - W) * T / _SLIP_PER_SUBSTEP)
-                if n < self._ncpl:
-                    n = self._ncpl
-                x, v = (L, V) if two else (R, W)
+                n = self._min_substeps + int(abs(vf - W) * T / _SLIP_PER_SUBSTEP)
+                if n < self._coupling_substeps:
+                    n = self._coupling_substeps
+                x, v = (L, V) if has_load else (R, W)
                 reach = (abs(v) + abs(vf)) * T + _WALL_MARGIN
-                if hi - x < reach and n < self._nhi:
-                    n = self._nhi
-                if x - lo < reach and n < self._nlo:
-                    n = self._nlo
+                if hi - x < reach and n < self._substeps_high_wall:
+                    n = self._substeps_high_wall
+                if x - lo < reach and n < self._substeps_low_wall:
+                    n = self._substeps_low_wall
                 h = T / n
                 hh = h * h
-                fh = fric * h
-                flh = fric_l * h
+                hv = 0.5 * h
+                fric_h = fric * h
+                fric_load_h = fric_load * h
                 df = vf * h
                 for _ in range(n):
                     ar = va * sin(_KE * (F - R)) / (1.0 + abs(W) * emf)
-                    if two:
-                        # Implicit coupling (when engaged), viscous and wall terms: a 2x2 solve.
-                        a11 = 1.0 + h * visc
-                        a22 = 1.0 + h * visc_l
+                    if has_load:
+                        # The coupling spring explicit (symplectic Euler: no numerical damping,
+                        # stable by the sub-steps), its damper and the viscous terms by the
+                        # trapezoidal rule (no numerical damping either), the walls implicit
+                        # (backward Euler: stable at any stiffness): a 2x2 solve for W and V.
+                        a11 = 1.0 + hv * visc
+                        a22 = 1.0 + hv * visc_load
                         a12 = a21 = 0.0
-                        b1 = W + h * ar
-                        b2 = V - h * load
+                        b1 = W * (1.0 - hv * visc) + h * ar
+                        b2 = V * (1.0 - hv * visc_load) - h * load
                         d = R - L
                         if d > gap or d < -gap:
                             tw = d - gap if d > gap else d + gap
-                            sr = hh * kr + h * cr
-                            sl = hh * kl + h * cl
+                            sr = hv * c_rotor
+                            sl = hv * c_load
                             a11 += sr
                             a22 += sl
                             a12 = -sr
                             a21 = -sl
-                            b1 -= h * kr * tw
-                            b2 += h * kl * tw
+                            b1 -= h * k_rotor * tw + sr * (W - V)
+                            b2 += h * k_load * tw + sl * (W - V)
                         if L > hi:
                             b2 -= h * khi * (L - hi)
                             a22 += hh * khi + (h * chi if V > 0.0 else 0.0)
@@ -421,16 +441,16 @@ class SimStepper(MotorHAL):
                         det = a11 * a22 - a12 * a21
                         W = (b1 * a22 - a12 * b2) / det
                         V = (a11 * b2 - a21 * b1) / det
-                        if V > flh:
-                            V -= flh
-                        elif V < -flh:
-                            V += flh
+                        if V > fric_load_h:
+                            V -= fric_load_h
+                        elif V < -fric_load_h:
+                            V += fric_load_h
                         else:
                             V = 0.0
                     else:
-                        # Implicit viscous and wall terms on the rotor alone.
-                        b1 = W + h * (ar - load)
-                        a11 = 1.0 + h * visc
+                        # Viscous term trapezoidal, wall implicit, on the rotor alone.
+                        b1 = W * (1.0 - hv * visc) + h * (ar - load)
+                        a11 = 1.0 + hv * visc
                         if R > hi:
                             b1 -= h * khi * (R - hi)
                             a11 += hh * khi + (h * chi if W > 0.0 else 0.0)
@@ -438,16 +458,16 @@ class SimStepper(MotorHAL):
                             b1 -= h * klo * (R - lo)
                             a11 += hh * klo + (h * clo if W < 0.0 else 0.0)
                         W = b1 / a11
-                    if W > fh:
-                        W -= fh
-                    elif W < -fh:
-                        W += fh
+                    if W > fric_h:
+                        W -= fric_h
+                    elif W < -fric_h:
+                        W += fric_h
                     else:
                         W = 0.0
                     R += W * h
                     L += V * h
                     F += df
-                if not two:
+                if not has_load:
                     L, V = R, W
             # Library ISR: encoder sample, velocity estimator, closed-loop re-synchronisation.
             if not isr_on or (skip_p and rng.uniform() < skip_p):
@@ -470,20 +490,20 @@ class SimStepper(MotorHAL):
                     if ramp.mode == POSITIONING:
                         ramp.xtarget = self._drv_xtarget
         self._t_next = t_next
-        self._R, self._W, self._L, self._V, self._F = R, W, L, V, F
+        self._rotor, self._rotor_speed, self._load_pos, self._load_speed, self._field_angle = R, W, L, V, F
         self._since_step = since
         self._field = field
-        self._counts, self._pid = counts, pid
+        self._counts, self._pid_error = counts, pid
 
     # ---- MotorHAL ----------------------------------------------------------------------------
     def enable_closed_loop(self):
-        self._cl = True
+        self._closed_loop = True
 
     def disable_closed_loop(self):
-        self._cl = False
+        self._closed_loop = False
 
     def set_control_threshold(self, usteps):
-        self._thr = float(usteps)
+        self._control_threshold = float(usteps)
 
     def set_max_velocity(self, full_steps_per_s):
         self._max_vel = abs(full_steps_per_s) * 256 * _VEL_CONV
@@ -582,20 +602,20 @@ class SimStepper(MotorHAL):
         self._drv_xtarget = target
 
     def set_inverted(self, inverted):
-        self._fdir = -self._wiring if inverted else self._wiring
+        self._field_dir = -self._wiring_sign if inverted else self._wiring_sign
 
     def angle_moved(self):
-        return self._counts * (360.0 / self._cpr)
+        return self._counts * (360.0 / self._counts_per_rev)
 
     def encoder_rpm(self):
-        return self._est.value * (60.0 / self._cpr)
+        return self._est.value * (60.0 / self._counts_per_rev)
 
     def driver_rpm(self):
         """True ramp speed (the library's getDriverRPM under-reports by 1.677, not modelled)."""
         return self._ramp.v * (60.0 / _USTEPS_PER_REV)
 
     def pid_error(self):
-        return float(self._pid)
+        return float(self._pid_error)
 
     def position_reached(self):
         return self._ramp.position_reached()
@@ -610,15 +630,15 @@ class SimStepper(MotorHAL):
         return self._ramp.xactual()
 
     def rotor_angle(self):
-        return self._R / _ANGLE_TO_STEP
+        return self._rotor / _ANGLE_TO_STEP
 
     def slipped_periods(self):
         """Whole electrical periods (4 full steps) the rotor has fallen behind or run ahead of the
         coil field since construction: nonzero once the motor has lost steps."""
-        return int(math.floor((self._F - self._R) / 1024.0 + 0.5))
+        return int(math.floor((self._field_angle - self._rotor) / 1024.0 + 0.5))
 
     def load_angle(self):
-        return (self._L if self._two else self._R) / _ANGLE_TO_STEP
+        return (self._load_pos if self._has_load else self._rotor) / _ANGLE_TO_STEP
 
     def set_end_stops(self, low_deg=None, high_deg=None):
         self._stops = (-_FAR if low_deg is None else low_deg * _ANGLE_TO_STEP,
@@ -633,36 +653,46 @@ class SimStepper(MotorHAL):
         self._walls()
 
     def block(self, stiffness=None, damping=None):
-        x, v = (self._L, self._V) if self._two else (self._R, self._W)
+        x, v = (self._load_pos, self._load_speed) if self._has_load else (self._rotor, self._rotor_speed)
         if abs(v) < 1.0:
-            v = self._fdir * self._ramp.v
+            v = self._field_dir * self._ramp.v
         self._add(x, -1 if v < 0.0 else 1, stiffness, damping)
 
+    def weaken_magnet(self, noise_factor=20.0, harmonics_deg=(20.0, 10.0), reports=MAGNET_WEAK):
+        cpd = self._counts_per_rev / 360.0
+        self._noise_counts *= noise_factor
+        self._harmonic1_counts = harmonics_deg[0] * cpd
+        self._harmonic2_counts = harmonics_deg[1] * cpd
+        self._magnet = reports
+
+    def magnet(self):
+        return self._magnet
+
     def set_load_torque(self, nm):
-        self._ext = nm
-        self._load = self._gl * (self._gravity + nm)
+        self._external_torque_nm = nm
+        self._load_torque_accel = self._load_accel_per_nm * (self._load_torque_nm + nm)
 
     def _add(self, at, direction, stiffness, damping):
-        k, c = self._wall
+        k, c = self._end_stop_rates
         if stiffness is not None:
-            k = stiffness / self._jl
+            k = stiffness / self._load_inertia
         if damping is not None:
-            c = damping / self._jl
+            c = damping / self._load_inertia
         self._obstacles.append((at, 1 if direction > 0 else -1, k, c))
         self._walls()
 
     def _walls(self):
         """The tightest wall on each side, with its stiffness and damping (load accel units)."""
         lo, hi = self._stops
-        wlo = whi = self._wall
+        wlo = whi = self._end_stop_rates
         for at, direction, k, c in self._obstacles:
             if direction > 0:
                 if at < hi:
                     hi, whi = at, (k, c)
             elif at > lo:
                 lo, wlo = at, (k, c)
-        self._lo, self._hi = lo, hi
-        self._wlo, self._whi = wlo, whi
+        self._low_wall, self._high_wall = lo, hi
+        self._low_wall_rates, self._high_wall_rates = wlo, whi
         # Implicit walls are stable at any stiffness; sub-steps only resolve the impact.
-        self._nlo = min(_MAX_WALL_SUBSTEPS, 1 + int(_T_ISR * math.sqrt(wlo[0]) / _WN_H_CPL))
-        self._nhi = min(_MAX_WALL_SUBSTEPS, 1 + int(_T_ISR * math.sqrt(whi[0]) / _WN_H_CPL))
+        self._substeps_low_wall = min(_MAX_WALL_SUBSTEPS, 1 + int(_T_ISR * math.sqrt(wlo[0]) / _WN_H_CPL))
+        self._substeps_high_wall = min(_MAX_WALL_SUBSTEPS, 1 + int(_T_ISR * math.sqrt(whi[0]) / _WN_H_CPL))

@@ -17,10 +17,31 @@ firmware runs it inside the I2C IRQ and the host runs the very same check before
 import struct
 import sys
 
+
+
+def crc32_bitwise(data):
+    """CRC-32 (zlib's) bit by bit in 16-bit halves, so every step stays a small int: the spec hash
+    on a port built without binascii.crc32 (the uStepper S32 image), computed once at boot."""
+    hi = lo = 0xFFFF
+    for byte in data:
+        lo ^= byte
+        for _ in range(8):
+            low_bit = lo & 1
+            lo = (lo >> 1) | ((hi & 1) << 15)
+            hi >>= 1
+            if low_bit:
+                hi ^= 0xEDB8
+                lo ^= 0x8320
+    return ((hi ^ 0xFFFF) << 16) | (lo ^ 0xFFFF)
+
+
 try:
     from binascii import crc32
 except ImportError:
-    from zlib import crc32
+    try:
+        from zlib import crc32
+    except ImportError:
+        crc32 = crc32_bitwise
 
 from .protocol_v2 import spec_bytes as _v2_spec_bytes
 from ..micro import const
@@ -278,6 +299,9 @@ _DEG = "deg (motor)"
 _DEG_S = "deg/s (motor)"
 _DEG_S2 = "deg/s^2 (motor)"
 _LIMIT = 1e6
+# Motor angles travel as Q12 degrees (fixed.py): |angle| < 2^18 degrees, about half of it kept for the
+# homing offset added to an absolute target. A move beyond is refused (ERROR), never clamped.
+_ANGLE_LIMIT = 131071.0
 _ZERO_ONLY = Field("reserved", U8, "", 0, 0)
 
 
@@ -329,6 +353,7 @@ LASTERROR = const(0x31)
 PROTOCOL = const(0x32)
 HOMINGTRAVEL = const(0x33)
 WATCHDOG = const(0x34)
+HOMINGRESULT = const(0x35)
 WATCHDOG_MAX_MS = const(5000)
 
 BRAKE_FREEWHEEL = const(0)
@@ -348,9 +373,9 @@ REGISTERS = (
              doc="extension: ramp-generator speed (the original answered with flags only)"),
     Register(MOVESTEPS, "MOVESTEPS", write=(Field("steps", I32, "microsteps (1/256 step)"),),
              doc="relative move in the stepper library's step unit"),
-    Register(MOVEANGLE, "MOVEANGLE", write=_f32("angle", _DEG),
+    Register(MOVEANGLE, "MOVEANGLE", write=_f32("angle", _DEG, 0.0, _ANGLE_LIMIT),
              doc="extension: relative move"),
-    Register(MOVETOANGLE, "MOVETOANGLE", write=_f32("angle", _DEG),
+    Register(MOVETOANGLE, "MOVETOANGLE", write=_f32("angle", _DEG, 0.0, _ANGLE_LIMIT),
              doc="absolute move in the encoder frame; ignored while stalled or not enabled"),
     _unsupported(GETMOTORSTATE, "GETMOTORSTATE"),
     _unsupported(RUNCOTINOUS, "RUNCOTINOUS"),
@@ -412,6 +437,22 @@ REGISTERS = (
                  "homing, orientation check); 0 (boot): the original's, velocity only"),
     Register(HOMINGTRAVEL, "HOMINGTRAVEL", read=_f32("travel", _DEG),
              doc="extension: encoder travel of the last successful homing, start to end stop"),
+    Register(HOMINGRESULT, "HOMINGRESULT", read=(Field("outcome", U8),),
+             doc="extension: how the last HOME ended, an index of HOMING_OUTCOMES"),
+)
+
+# How a HOME ends (HOMINGRESULT; the joint's console says the same).
+HOMING_OUTCOMES = (
+    "running",
+    "homed",
+    "travel limit reached without finding the end stop",
+    "timeout without finding the end stop",
+    "end stop found, but the sensitivity was not reached within the push time: lower it",
+    "encoder too noisy at rest (weak or missing magnet): homing refused",
+    "the joint did not come to rest before homing (a link falling under its load): homing refused",
+    "encoder reports no magnet (or does not answer): homing refused",
+    "encoder reports its magnet too weak (too far from the sensor): homing refused",
+    "encoder reports its magnet too strong (too close to the sensor): homing refused",
 )
 
 BY_ADDR = [None] * 256

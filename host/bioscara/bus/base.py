@@ -2,12 +2,18 @@
 
 from __future__ import annotations
 
+import re
 import threading
 import time
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ..errors import CommError
+
+if TYPE_CHECKING:
+    from ..commander import Commander
 from ..firmware.spec.protocol import wire_bits
 
 RETRY_DELAYS_S = (0.0001, 0.001, 0.005)  # between attempts; the original waited only 50 us
@@ -104,6 +110,23 @@ class Bus(ABC):
 
     def describe(self) -> str:
         return self.scheme + ":"
+
+    def arm_lock_path(self) -> Path | None:
+        """The commander lock every process opening this bus shares (see commander.py); None
+        for a bus no other process can reach (simulated joints inside this process)."""
+        from ..paths import default_state_dir
+        key = re.sub(r"[^A-Za-z0-9]+", "-", self.describe()).strip("-")
+        return default_state_dir() / f"arm-{key}.lock"
+
+    @property
+    def commander(self) -> Commander | None:
+        """Who commands the arm on this bus, as this process sees it (None: only this process
+        reaches the bus, nothing to share)."""
+        path = self.arm_lock_path()
+        if path is None:
+            return None
+        from ..commander import commander_for
+        return commander_for(path, self.describe())
 
     def close(self) -> None:
         """Release the bus; idempotent."""

@@ -8,7 +8,6 @@ it without waiting, so scenarios run deterministically and much faster than real
 from __future__ import annotations
 
 import logging
-import math
 import time
 from dataclasses import dataclass
 from typing import Any, Callable, Sequence
@@ -19,6 +18,7 @@ from ..firmware.sim.clock import VirtualClock
 from ..firmware.sim import mechanics
 from ..firmware.sim.joint import SimJoint
 from ..firmware.sim.stepper import SimStepper
+from ..transmission import Transmission
 from .base import Bus
 
 log = logging.getLogger("bioscara.sim")
@@ -44,8 +44,13 @@ class SimJointSpec:
     payload_kg: float = 0.0
     noise: str = "nominal"
 
+    @property
+    def transmission(self) -> Transmission:
+        """Joint units <-> this simulated motor's angle, 0 where the link starts."""
+        return Transmission(self.reduction, self.start)
+
     def motor_degrees(self, position: float) -> float:
-        return math.degrees(self.reduction * (position - self.start))
+        return self.transmission.motor_degrees(position)
 
 
 def build_joint(spec: SimJointSpec, clock: VirtualClock, seed: int, port: str,
@@ -80,6 +85,9 @@ class SimBus(Bus):
     def describe(self) -> str:
         return "sim:" + ("realtime" if self.realtime else "virtual")
 
+    def arm_lock_path(self) -> None:
+        return None  # these joints live in this process: no other program reaches them
+
     def joint(self, address: int) -> SimJoint:
         """The simulated joint at `address` (to inject collisions, reboot it, look at its rotor)."""
         joint = self.sim.joint_at(address)
@@ -90,8 +98,7 @@ class SimBus(Bus):
     def joint_position(self, address: int) -> float:
         """True joint position (joint units) from the simulated link (not the rotor: the
         transmission's compliance and backlash lie between them)."""
-        spec = self.specs[address]
-        return spec.start + math.radians(self.joint(address).stepper.load_angle()) / spec.reduction
+        return self.specs[address].transmission.position(self.joint(address).stepper.load_angle())
 
     def _catch_up(self) -> None:
         if self.realtime:

@@ -17,8 +17,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from ..console import PLOT_COLUMNS, JointConsole, plot
-from ..errors import BioscaraError, InvalidArgumentError
+from ..serial_console import PLOT_COLUMNS, JointConsole, plot
+from ..errors import BioscaraError, CommError, InvalidArgumentError
 from ..firmware.console.debug_commands import TRACE_COLUMNS
 from ..paths import default_state_dir, private_file
 from ..serial_port import DEFAULT_BAUD
@@ -38,6 +38,7 @@ LOCAL_HELP = (
     ":quit               leave (also Ctrl-D)",
 )
 PLOT_WINDOW_S = 5.0
+FIRST_ANSWER_S = 1.0  # a joint answers a command within milliseconds; the HIL bridge never does
 OK, ERROR, QUIT = "ok", "error", "quit"  # outcomes of a line; a plot request is its columns (a tuple)
 Outcome = str | tuple[str, ...]
 
@@ -91,13 +92,19 @@ class Printer:
     def __init__(self) -> None:
         self._lock = threading.Lock()
         self.joint_errors = 0
+        self.reader_gone = False  # stdout is a pipe whose reader left (`| head`)
 
     def __call__(self, line: str) -> None:
         words = line.split(maxsplit=2)
         with self._lock:
             if line.startswith("error:") or len(words) > 1 and words[1] == "ERROR":
                 self.joint_errors += 1
-            print(line, flush=True)
+            if self.reader_gone:
+                return
+            try:
+                print(line, flush=True)
+            except BrokenPipeError:  # in the reader thread: the command ends when the main thread looks
+                self.reader_gone = True
 
 
 def batch(console: JointConsole, lines: list[str], duration: float, out: Printer,
@@ -112,7 +119,20 @@ def batch(console: JointConsole, lines: list[str], duration: float, out: Printer
             status = 1
         elif isinstance(outcome, tuple):
             columns = outcome
-    time.sleep(duration)  # the joint answers and logs meanwhile (the reader thread prints)
+    # The joint answers and logs meanwhile (the reader thread prints); a port that has said nothing
+    # yet gets FIRST_ANSWER_S, so a short --duration still tells a silent port from a joint.
+    start = time.monotonic()
+
+    def waiting() -> bool:
+        now = time.monotonic()
+        return now < start + duration or bool(lines) and not console.lines_received and now < start + FIRST_ANSWER_S
+    while not out.reader_gone and waiting():
+        time.sleep(0.02)
+    if out.reader_gone:
+        raise BrokenPipeError
+    if lines and not console.lines_received:
+        raise CommError(f"nothing answered on {console.path}: it is not a joint's debug console (a HIL bridge "
+                        f"is used with --bus serial:{console.path}); `bioscara ports {console.path}` says what it is")
     if out.joint_errors:
         status = 1
     if columns is not None:

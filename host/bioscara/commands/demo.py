@@ -16,8 +16,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace, session: Session) -> int:
-    from .. import demo
-    steps = demo.run(session.config, session.console)
+    from .. import demo_scenario
+    steps = demo_scenario.run(session.config, session.console)
     if session.json:
         session.emit([{"step": s.name, "targets": s.targets, "final": s.reached,
                        "gripper_target": s.gripper_target, "gripper": s.gripper} for s in steps])

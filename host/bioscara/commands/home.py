@@ -3,15 +3,14 @@
 from __future__ import annotations
 
 import argparse
-import contextlib
-from collections.abc import Callable
+import math
 
-from rich.live import Live
 from rich.table import Table
 
 from .. import motion, report
-from ..arm import Arm
+from ..arm import Arm, ArmJoint
 from ..communicator import Communicator
+from ..progress import Progress, ProgressRunner
 from ..session import Session
 from .options import joint_name, positive
 
@@ -27,29 +26,43 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="control cycle rate, Hz (default 50)")
 
 
-class ProgressRunner:
-    """Runs the communicator and redraws the progress after every cycle."""
+class Travel:
+    """How far each joint has moved since homing began, joint units: its measured velocity summed
+    over the cycles until it is homed (the position is unknown before, and jumps to the homed frame)."""
 
-    def __init__(self, comm: Communicator, show: Callable[[], None]) -> None:
-        self.comm = comm
-        self.show = show
+    def __init__(self, arm: Arm) -> None:
+        self.arm = arm
+        self.start = self.last = arm.bus.monotonic()
+        self.travel = dict.fromkeys(arm.joints, 0.0)
 
-    def run_until(self, predicate: Callable[[], bool], timeout: float) -> None:
-        def check() -> bool:
-            self.show()
-            return predicate()
-        self.comm.run_until(check, timeout)
+    def sample(self) -> None:
+        now = self.arm.bus.monotonic()
+        for name, aj in self.arm.joints.items():
+            if aj.state.home != 1.0 and math.isfinite(aj.state.velocity):
+                self.travel[name] += aj.state.velocity * (now - self.last)
+        self.last = now
+
+    @property
+    def elapsed(self) -> float:
+        return self.arm.bus.monotonic() - self.start
+
+    def table(self) -> Table:
+        table = Table(title=f"homing, {self.elapsed:.1f} s", title_justify="left")
+        for column in ("joint", "state", "flags", "travel", "velocity"):
+            table.add_column(column, justify="left" if column in ("joint", "state", "flags") else "right")
+        for name, aj in self.arm.joints.items():
+            table.add_row(name, _state(aj), "|".join(report.flags(aj.joint.flags)) or "-",
+                          report.value(self.travel[name], aj.config, digits=3),
+                          report.value(aj.state.velocity, aj.config, per_second=True, digits=4))
+        return table
+
+    def line(self) -> str:
+        return "; ".join(f"{name} {_state(aj)}, travel {report.value(self.travel[name], aj.config, digits=3)}"
+                         for name, aj in self.arm.joints.items()) + f"; {self.elapsed:.1f} s"
 
 
-def _progress(arm: Arm) -> Table:
-    table = Table()
-    for column in ("joint", "state", "flags", "velocity"):
-        table.add_column(column, justify="right" if column == "velocity" else "left")
-    for name, aj in arm.joints.items():
-        state = "homed" if aj.state.home == 1.0 else ("homing" if aj.joint.is_busy() else "waiting")
-        table.add_row(name, state, "|".join(report.flags(aj.joint.flags)) or "-",
-                      report.value(aj.state.velocity, aj.config, per_second=True, digits=4))
-    return table
+def _state(aj: ArmJoint) -> str:
+    return "homed" if aj.state.home == 1.0 else ("homing" if aj.joint.is_busy() else "waiting")
 
 
 def run(args: argparse.Namespace, session: Session) -> int:
@@ -59,16 +72,15 @@ def run(args: argparse.Namespace, session: Session) -> int:
     arm.configure()
     arm.activate()
     directions = {name: args.direction for name in names} if args.direction else None
-    t0 = arm.bus.monotonic()
-    live = session.console.is_terminal and not session.json
-    with (Live(_progress(arm), console=session.console, auto_refresh=False, transient=True) if live
-          else contextlib.nullcontext()) as display:
-        show = (lambda: display.update(_progress(arm), refresh=True)) if display is not None else (lambda: None)
-        motion.home(arm, ProgressRunner(comm, show), names, directions, timeout=args.timeout)
-    seconds = arm.bus.monotonic() - t0
-    joints = [{**report.joint_ref(name, arm[name].config), "homed": True, "position": arm[name].state.position}
-              for name in names]
+    travel = Travel(arm)
+    with Progress(travel.table, travel.line, sample=travel.sample) as progress:
+        motion.home(arm, ProgressRunner(comm, progress), names, directions, timeout=args.timeout)
+    seconds = travel.elapsed
+    joints = [{**report.joint_ref(name, arm[name].config), "homed": True, "position": arm[name].state.position,
+               "travel": travel.travel[name]} for name in names]
     session.emit({"joints": joints, "seconds": seconds},
-                 "\n".join([f"{j['joint']}: homed at {report.value(j['position'], arm[j['joint']].config)}"
-                            for j in joints] + [f"homed {', '.join(names)} in {seconds:.1f} s"]))
+                 "\n".join([line for j in joints for line in (
+                     f"{j['joint']}: homed at {report.value(j['position'], arm[j['joint']].config)}",
+                     f"{j['joint']}: travelled {report.value(j['travel'], arm[j['joint']].config, digits=3)}")]
+                     + [f"homed {', '.join(names)} in {seconds:.1f} s"]))
     return 0

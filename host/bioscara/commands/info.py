@@ -3,20 +3,19 @@
 from __future__ import annotations
 
 import argparse
-from dataclasses import asdict
 from typing import Any
 
 from rich.table import Table
 
 from .. import report
-from ..errors import BioscaraError, IncorrectStateError, NotHomedError
-from ..firmware.spec import protocol_v2 as V
+from ..errors import BioscaraError, NotHomedError
 from ..session import Session
 from .options import one_joint
 
 NAME = "info"
-HELP = ("identity, protocol, flags, position, velocity, last rejected frame and link statistics "
-        "of a joint")
+HELP = ("identity, flags, position, velocity, last rejected frame and link statistics of a joint (read "
+        "only: beside a program that commands the arm, what that program last read)")
+USES = ("bus", "protocol", "config", "json")  # it only watches: nothing to take over
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -24,11 +23,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace, session: Session) -> int:
-    joint = session.joint(args.joint)
+    joint = session.joint(args.joint, watch=True)  # read only: beside whatever commands the arm
     jc = session.config.joints[args.joint]
     info: dict[str, Any] = {**report.joint_ref(args.joint, jc), "type": jc.type, "reduction": jc.reduction,
                             "limits": [jc.min, jc.max]}
-    identity = None
     try:
         identity = joint.identity()
         info.update(protocol_version=identity.protocol, firmware=identity.firmware_version,
@@ -39,24 +37,18 @@ def run(args: argparse.Namespace, session: Session) -> int:
         info["last_rejected"] = reject.text if reject.count else None
     except BioscaraError as exc:
         info["identity_error"] = exc.detail
-    if session.protocol != "legacy" and identity is not None and identity.protocol >= V.PROTOCOL_V2:
-        joint.use_v2()  # the rest is read over protocol v2
-    elif session.protocol == "v2":
-        raise IncorrectStateError("the joint does not serve protocol v2", joint=args.joint)
-    info["protocol"] = joint.protocol
     try:
         info["position"] = joint.get_position()
     except NotHomedError:
         info["position"] = None
     info["velocity"] = joint.get_velocity()
+    holder = getattr(joint.link, "holder", None)
+    info["commanded_by"] = None if holder is None else {"pid": holder.pid, "program": holder.program}
     info["flags"] = report.flags(joint.flags)
     info.update(homed=joint.is_homed(), enabled=joint.is_enabled(), stalled=joint.is_stalled(),
                 busy=joint.is_busy())
     link = session.bus.stats.link(jc.address)
     info["link"] = {"transactions": link.transactions, "failed_attempts": link.failed_attempts}
-    if joint.v2 is not None:
-        info["v2_link"] = asdict(joint.v2.stats)
-        joint.close()  # back to the legacy map for whoever comes next
     session.emit(info, _table(info, jc, session))
     return 0
 
@@ -74,14 +66,13 @@ def _table(info: dict[str, Any], jc: Any, session: Session) -> Table:
                  ("spec hash", f"{info['spec_hash']} {'ok' if info['spec_matches'] else 'MISMATCH'}"),
                  ("rejected frames", f"{info['rejected_frames']}"
                   + (f" (last: {info['last_rejected']})" if info["last_rejected"] else ""))]
-    rows += [("protocol", str(info["protocol"])),
+    rows += [("commanded by", "no program" if info["commanded_by"] is None else
+              f"pid {info['commanded_by']['pid']} ({info['commanded_by']['program']}): its latest reading"),
              ("position", "not homed" if info["position"] is None else report.value(info["position"], jc)),
              ("velocity", report.value(info["velocity"], jc, per_second=True)),
              ("flags", "|".join(info["flags"]) or "-"),
              ("state", ", ".join(f"{k}" if info[k] else f"not {k}" for k in ("homed", "enabled", "stalled", "busy"))),
              ("link", f"{info['link']['transactions']} transactions, {info['link']['failed_attempts']} failed attempts")]
-    if "v2_link" in info:
-        rows.append(("v2 link", ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in info["v2_link"].items())))
     table = Table(title=f"{info['joint']} on {session.bus.describe()}", show_header=False)
     for key, value in rows:
         table.add_row(key, value)

@@ -21,7 +21,9 @@ from ..session import Session
 from .options import count, positive
 
 NAME = "monitor"
-HELP = "live position, velocity and flags of every joint (read only: nothing is enabled)"
+HELP = ("live position, velocity and flags of every joint (read only: runs beside the program that "
+        "commands the arm, and disturbs nothing)")
+USES = ("bus", "protocol", "config", "json")  # it only watches: nothing to take over
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -66,7 +68,7 @@ def _line(snapshot: Snapshot, arm: Arm) -> str:
 
 
 def run(args: argparse.Namespace, session: Session) -> int:
-    arm = session.arm
+    arm = session.watched_arm()
     comm = Communicator(arm, frequency=args.rate)
     arm.configure()
     writer = None

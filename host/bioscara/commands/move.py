@@ -7,6 +7,7 @@ import argparse
 from .. import motion, report
 from ..communicator import Communicator
 from ..errors import InvalidArgumentError, NotHomedError
+from ..progress import Progress, ProgressRunner
 from ..session import Session
 from .options import finite, one_joint, positive
 
@@ -31,7 +32,15 @@ def run(args: argparse.Namespace, session: Session) -> int:
         raise NotHomedError(f"not homed: run `bioscara home {args.joint}` first", joint=args.joint)
     arm.activate()
     comm = Communicator(arm, frequency=50.0)
-    final = motion.move_to(arm, comm, {args.joint: args.value}, args.tolerance, args.timeout)
+    start = arm.bus.monotonic()
+    state = arm[args.joint].state
+
+    def line() -> str:
+        return (f"{args.joint} at {report.value(state.position, jc)}, target {report.value(args.value, jc)}, "
+                f"{report.value(state.velocity, jc, per_second=True, digits=3)}, {arm.bus.monotonic() - start:.1f} s")
+    with Progress(line, line) as progress:
+        final = motion.move_to(arm, ProgressRunner(comm, progress), {args.joint: args.value}, args.tolerance,
+                               args.timeout)
     # The firmware stops a position move the host stops watching (deadman); STOP ends the move
     # here, so the joint holds where it is once this command exits.
     arm[args.joint].joint.stop()

@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import re
 
 from rich.table import Table
 
-from .. import flash, wiring
+from .. import firmware_flash, wiring
 from ..errors import InvalidArgumentError
 from ..session import Session
 
@@ -22,10 +23,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace, session: Session) -> int:
-    if args.joint.upper() in flash.JOINTS:
-        _, cfg = flash.joint_config(args.joint.upper())
+    if args.joint.upper() in firmware_flash.JOINTS:
+        _, cfg = firmware_flash.joint_config(args.joint.upper())
+    elif re.fullmatch(r"[jJ]\d+", args.joint):
+        raise InvalidArgumentError(f"no joint {args.joint}; the joints are "
+                                   f"{', '.join(j.lower() for j in firmware_flash.JOINTS)} (or a FILE.json you wrote)")
     else:
-        _, cfg = flash.user_joint_config(args.joint)
+        _, cfg = firmware_flash.user_joint_config(args.joint)
     rows = wiring.pin_map(cfg)
     if args.markdown and session.json:
         raise InvalidArgumentError("--markdown or --json: one output at a time")

@@ -36,7 +36,7 @@ def probe(session: Session, addr: int, configured: str | None) -> dict[str, Any]
     """What one answering address is: a joint of this project, an original joint, or unknown."""
     entry: dict[str, Any] = {"address": addr, "joint": configured, "kind": "unknown device",
                              "answers": True, "problems": []}
-    joint = Joint(configured or report.address(addr), addr, session.bus)
+    joint = Joint(configured or report.address(addr), addr, session.bus, watch=True)  # read only
     try:
         joint.init()
     except BioscaraError as exc:

@@ -1,4 +1,4 @@
-"""`bioscara shell`: the interactive console (`bioscara.shell`) behind a prompt_toolkit line editor.
+"""`bioscara shell`: the interactive console (`bioscara.shell_interpreter`) behind a prompt_toolkit line editor.
 
 Interactive on a terminal (history, tab completion, Ctrl-C cancels the line, Ctrl-D leaves);
 non-interactive with `--script FILE` or when stdin is not a terminal, exiting 1 at the first
@@ -9,12 +9,14 @@ wall-clock pace (in virtual time it would race ahead of the person typing).
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 from collections.abc import Iterable
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
+from .. import interruption
 from ..arm import Arm, Lifecycle
 from ..bus import Bus
 from ..config import ArmConfig
@@ -22,12 +24,12 @@ from ..paths import default_state_dir, private_file
 from ..hardware import open_arm, open_arm_bus
 from ..session import Session
 from ..errors import InvalidArgumentError
-from ..shell import Shell, script_lines
+from ..shell_interpreter import Shell, script_lines
 from .options import count, positive
 
 NAME = "shell"
 HELP = "interactive console: communicator, arm lifecycle, command modes, registers (`help` inside)"
-USES = ("bus", "protocol", "config")
+USES = ("bus", "protocol", "config", "take_over")
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--script", metavar="FILE", help="run FILE's commands and exit; non-zero at the first "
@@ -56,7 +58,8 @@ class Context:
 def run(args: argparse.Namespace, session: Session) -> int:
     if args.script not in (None, "-"):
         script_lines(Path(args.script))  # refuses an unreadable script before the bus is opened
-    context = open_context(session.config, session.protocol)
+    context = open_context(session.config, session.protocol, take_over=bool(getattr(args, "take_over", False)))
+    session.drives(context.arm)
     shell = Shell(context, out=lambda text: session.console.print(text, markup=False, highlight=False,
                                                                   soft_wrap=True),
                   err=session.err, expert=args.expert, frequency=args.rate, priority=args.priority or None,
@@ -77,22 +80,27 @@ def run(args: argparse.Namespace, session: Session) -> int:
         close_context(shell, context, session)
 
 
-def open_context(config: ArmConfig, protocol: str = "auto") -> Context:
-    """Open the configured bus (the simulator in real time) and the arm (`--protocol`)."""
+def open_context(config: ArmConfig, protocol: str = "auto", *, take_over: bool = False) -> Context:
+    """Open the configured bus (the simulator in real time) and the arm (`--protocol`; `--take-over`
+    from the program that commands it, if any)."""
     if config.bus_url.startswith("sim:"):
         config = replace(config, sim=replace(config.sim, realtime=True))
     bus = open_arm_bus(config)
-    return Context(config, bus, open_arm(config, bus, protocol))
+    return Context(config, bus, open_arm(config, bus, protocol, take_over=take_over))
 
 
 def close_context(shell: Shell, context: Context, session: Session) -> None:
-    """Stop the communicator, shut the arm down (disabling the joints), release the bus."""
+    """Leave the arm as `move` does: STOP the active joints and say where they hold, stop the
+    communicator, let go of the joints (a holding joint keeps holding; a vertical joint would
+    drop if disabled), release the bus."""
     try:
+        if context.arm.lifecycle is Lifecycle.ACTIVE:
+            interruption.stop_arms([context.arm], lambda text: session.err(f"leaving the shell: {text}; "
+                                                                            "the joints keep holding"))
         shell.close()
-        if context.arm.lifecycle is not Lifecycle.FINALIZED:
-            context.arm.shutdown()
+        context.arm.release()
     except Exception as exc:  # report, but still release the bus
-        session.err(f"error: shutting the arm down: {exc}")
+        session.err(f"error: leaving the arm: {exc}")
     finally:
         context.bus.close()
 
@@ -121,8 +129,11 @@ def interactive(shell: Shell, history: Path, *, input: Any = None, output: Any =
                 break
             try:
                 shell.execute(line)
-            except KeyboardInterrupt:
-                shell.err("interrupted")
+            except KeyboardInterrupt as exc:
+                if isinstance(exc, interruption.Interrupted) and exc.signum != signal.SIGINT:
+                    raise  # SIGTERM, a closed terminal: leave (the arm stops on the way out)
+                shell.err("interrupted: stopping the arm")
+                interruption.stop_arms([shell.arm], shell.err)
     return 0
 
 

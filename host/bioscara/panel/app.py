@@ -86,6 +86,7 @@ class PanelApp(App[None]):
     """`bioscara panel`: the arm's control panel."""
 
     TITLE = "bioscara panel"
+    AUTO_FOCUS = "#joints"  # the arm, not a text box: the keys (a, p, h, ...) act at once
     CSS = """
     #top { height: auto; }
     #states { width: 1fr; height: auto; border: round $accent; padding: 0 1; }
@@ -125,6 +126,7 @@ class PanelApp(App[None]):
         self.model = model
         self.selected = next(iter(model.arm.joints))
         self._messages_shown = 0
+        self.plotted: list[str] = []  # the joints the plot draws now (those with values to draw)
         self._shown: dict[str, object] = {}  # what each widget shows now, by selector
         self._home_labels = {name: HOME_LABELS[aj.config.type] for name, aj in model.arm.joints.items()}
 
@@ -241,14 +243,15 @@ class PanelApp(App[None]):
             "velocity": _fmt(joint.velocity, joint.unit + "/s"),
             "command": _fmt(joint.command, joint.unit),
             "mode": joint.mode,
-            "flags": f"0x{joint.flags:02x} {joint.flag_names}",
-            "homed": "yes" if joint.homed else "no",
+            "flags": f"0x{joint.flags:02x} {joint.flag_names}" if joint.known else "unknown",
+            "homed": ("yes" if joint.homed else "no") if joint.known else "?",
             "fault": joint.fault or "",
             "link": joint.link if joint.link != "ok" else f"ok ({joint.transactions} tx, {joint.lost} lost)",
         }
         for column, value in cells.items():
             self._cell(table, row, column, value)
-        self._text(f"#{row}-homed", "[b green]Ready[/]" if joint.homed else "[b red]Not Homed[/]")
+        self._text(f"#{row}-homed", "[dim]unknown[/]" if not joint.known else
+                   "[b green]Ready[/]" if joint.homed else "[b red]Not Homed[/]")
         for suffix, label in zip(("neg", "stop", "pos"), self._home_labels[row]):
             self._button(f"#{row}-home-{suffix}", label, not homing)
 
@@ -270,12 +273,17 @@ class PanelApp(App[None]):
         samples = list(self.model.samples)
         now = samples[-1][0] if samples else 0.0
         span = self.model.samples.maxlen / self.model.comm.frequency
+        plotted: list[str] = []
         for name in names:
+            # Only finite points inside the time axis: plotext fails on a labelled series it cannot
+            # place (all NaN, or older than the axis, as a slow cycle leaves them).
             points = [(t - now, v[f"{name}/{signal}"]) for t, v in samples
-                      if math.isfinite(v.get(f"{name}/{signal}", math.nan))]
-            if points:  # plotext cannot draw a series without a finite value
+                      if t - now >= -span and math.isfinite(v.get(f"{name}/{signal}", math.nan))]
+            if points:
                 xs, ys = zip(*points)
                 plt.plot(xs, ys, label=name)
+                plotted.append(name)
+        self.plotted = plotted
         unit = "m" if self.model.arm[names[0]].config.type == "prismatic" else "rad"
         plt.xlim(-span, 0)
         plt.title(f"{signal.replace('_', ' ')} ({_UNIT_LABEL[signal].format(u=unit)}), last {span:g} s")

@@ -46,6 +46,7 @@ class JointView:
     flags: int
     mode: str  # "position", "velocity", "home" or "off"
     homed: bool
+    known: bool  # the joint has been read since the arm was configured (else flags and homed mean nothing yet)
     fault: str | None  # the cause of this joint's fault: stall, deadman, limit, lost link, ...
     link: str  # "ok" or why the last transfer failed
     transactions: int
@@ -208,16 +209,18 @@ class PanelModel:
             name=name, unit="m" if aj.config.type == "prismatic" else "rad",
             position=aj.state.position if known else math.nan, velocity=aj.state.velocity if known else math.nan,
             command=aj.command.position if Mode.POSITION in aj.modes else math.nan,
-            flags=aj.joint.flags, mode=mode, homed=aj.joint.is_homed(), fault=fault,
+            flags=aj.joint.flags, mode=mode, homed=known and aj.joint.is_homed(), known=known, fault=fault,
             link=f"lost: {link.last_error}" if failed else "ok",
             transactions=link.transactions, lost=link.comm_errors)
 
     def _take_samples(self) -> None:
+        # Before the arm is configured the cycle reads nothing: its values are placeholders, not 0 rad.
+        known = self.arm.lifecycle in (Lifecycle.INACTIVE, Lifecycle.ACTIVE)
         for snapshot in self._subscription.drain():
             values: dict[str, float] = {}
             for name, sample in snapshot.joints.items():
-                values[f"{name}/position"] = sample.position
-                values[f"{name}/velocity"] = sample.velocity
+                values[f"{name}/position"] = sample.position if known else math.nan
+                values[f"{name}/velocity"] = sample.velocity if known else math.nan
                 command = self.arm[name].command.position
                 values[f"{name}/following_error"] = (command - sample.position
                                                      if Mode.POSITION in self.arm[name].modes else math.nan)

@@ -13,7 +13,7 @@ import sys
 from pathlib import Path
 
 from ..arm import Mode
-from ..config import load_config
+from ..config import read_config
 from ..hardware import open_arm, open_arm_bus, open_gripper
 from .app import PanelApp
 from .model import PanelModel
@@ -22,7 +22,7 @@ SIZE = (160, 50)
 
 
 def render_screenshot(path: Path) -> None:
-    config = load_config()
+    config = read_config()
     config = replace(config, bus=replace(config.bus, url="sim:virtual"))  # in this process, in virtual time
     bus = open_arm_bus(config)
     model = PanelModel(config, open_arm(config, bus), open_gripper(config, bus.monotonic), threaded=False)

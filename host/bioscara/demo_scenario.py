@@ -8,7 +8,7 @@ from dataclasses import dataclass, replace
 from rich.console import Console
 from rich.table import Table
 
-from . import motion
+from . import interruption, motion, report
 from .communicator import Communicator
 from .config import ArmConfig, load_config
 from .hardware import open_arm, open_gripper
@@ -64,12 +64,15 @@ def run(config: ArmConfig | None = None, console: Console | None = None) -> list
         arm.deactivate()
         if gripper is not None:
             gripper.disable()
+    except KeyboardInterrupt:  # Ctrl-C, SIGTERM, SIGHUP (bioscara.interruption): stop, say where
+        interruption.stop_arms([arm], lambda text: Console(stderr=True).print(text, markup=False, highlight=False))
+        raise
     finally:
         if gripper is not None:
             gripper.close()
         arm.shutdown()
         arm.bus.close()
-    console.print(_table(steps))
+    console.print(report.for_terminal(_table(steps), console.is_terminal))
     stats = runner.stats
     console.print(f"communicator: {stats.cycles} cycles at {stats.rate:.1f} Hz (target {runner.frequency:g}), "
                   f"jitter {stats.jitter * 1e6:.0f} us, {stats.overruns} overruns, "

@@ -81,7 +81,7 @@ def fault_cause(exc: BioscaraError) -> str:
     if isinstance(exc, StalledError):
         return f"{where}stall: stall detection stopped the joint (a collision, or more load than its current)"
     if isinstance(exc, NotEnabledError):
-        return (f"{where}deadman: the joint stopped and disabled itself after 50 ms without traffic "
+        return (f"{where}deadman: the joint stopped and disabled itself: {exc.detail} "
                 "(keep the communicator running while a joint moves)")
     if isinstance(exc, CommError):
         return f"{where}lost link: {exc.detail}"
@@ -358,17 +358,24 @@ class Shell:
         self.arm.configure()
         self._reported_fault = None
         self.out(f"arm {self.arm.lifecycle.value}")
+        self._keep_talking()
+
+    def _keep_talking(self) -> None:
+        """With keep-alive, the communicator runs from `configure` on: a joint that has not heard
+        its host for a while leaves protocol v2 for the legacy map (and the pause between two typed
+        lines is such a while), and an active joint's deadman disables it after 50 ms."""
+        if self.keep_alive and not self.communicator.running:
+            self.communicator.reset_stats()
+            self.communicator.start()
+            self.out(f"communicator started at {self.communicator.frequency:g} Hz: it keeps the joints "
+                     "fed while you type (the active joints' deadman disables them after 50 ms without traffic)")
 
     @command("", "enable every joint with its limits (arm inactive -> active)")
     def _do_activate(self, args: list[str]) -> None:
         _arity(args, 0, 0, "activate")
         self.arm.activate()
         self.out(f"arm {self.arm.lifecycle.value}")
-        if self.keep_alive and not self.communicator.running:
-            self.communicator.reset_stats()
-            self.communicator.start()
-            self.out(f"communicator started at {self.communicator.frequency:g} Hz: it keeps the active joints "
-                     "fed (their deadman disables them after 50 ms without traffic)")
+        self._keep_talking()
 
     @command("", "disable every joint, freewheeling (arm active -> inactive)")
     def _do_deactivate(self, args: list[str]) -> None:
@@ -405,6 +412,9 @@ class Shell:
                          f"{aj.command.home:+g}"])
         for line in _table(rows):
             self.out(line)
+        for name, aj in arm.joints.items():
+            if aj.joint.disabled_cause and not aj.joint.is_enabled():
+                self.out(f"{name}: {aj.joint.disabled_cause}")
 
     @command("JOINT|all [position|velocity|home|off]", "show or switch a joint's command mode",
              "Switches through the arm's command interfaces: the joint's active mode is stopped and\n"
@@ -563,7 +573,7 @@ class Shell:
         self.out("Tab completes commands, joints, registers and modes; Ctrl-C cancels the line; "
                  "`help COMMAND` explains one.")
 
-    @command("", "leave the shell (also exit, Ctrl-D); the arm is shut down")
+    @command("", "leave the shell (also exit, Ctrl-D); moving joints are stopped and keep holding")
     def _do_quit(self, args: list[str]) -> None:
         _arity(args, 0, 0, "quit")
         self.done = True

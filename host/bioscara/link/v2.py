@@ -1,4 +1,4 @@
-"""The host side of protocol v2 (firmware/joint/spec/protocol_v2.py): one combined transaction per
+"""The host's protocol v2 link (the spec: firmware/joint/spec/protocol_v2.py): one combined transaction per
 exchange, writing a mailbox frame and reading the state block, with the checks that keep corrupted
 or replayed data out.
 
@@ -13,14 +13,17 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from .bus.base import Bus
-from .errors import BioscaraError, CommError
-from .firmware.spec import protocol as P
-from .firmware.spec import protocol_v2 as V
+from ..bus.base import Bus
+from ..errors import CommError, IncorrectStateError
+from ..firmware.spec import protocol as P
+from ..firmware.spec import protocol_v2 as V
+from .base import Command, Link, LinkRejected, LinkState
 
 SYNC_ATTEMPTS = 50  # exchanges before a joint that was asked to switch counts as not speaking v2
 VERDICT_ATTEMPTS = 20  # exchanges waiting for a command's verdict
 RETRY_PERIOD_S = 0.001  # the joint's main loop judges a frame within one pass (1 ms)
+LOST_AFTER = 3  # corrupted states in a row before the joint may have left v2 (reboot, silence)
+STATE_REGISTERS = (P.PING, P.ANGLEMOVED, P.GETENCODERRPM)  # what the state block carries
 
 
 @dataclass(frozen=True)
@@ -47,20 +50,15 @@ class V2LinkStats:
     retransmissions: int = 0
 
 
-class V2Rejected(BioscaraError):
-    """The joint refused a v2 command (its verdict is in `verdict`)."""
-
-    def __init__(self, message: str, verdict: int, joint: str | None = None, flags: int = 0) -> None:
-        super().__init__(message, joint=joint)
-        self.verdict = verdict
-        self.flags = flags  # the status flags of the state that carried the verdict
+V2Rejected = LinkRejected  # a refusal carries the joint's verdict as its `reason`
 
 
-class V2Link:
-    def __init__(self, bus: Bus, address: int, name: str = "") -> None:
-        self.bus = bus
-        self.address = address
-        self.name = name or f"0x{address:02x}"
+class V2Link(Link):
+    name = "v2"
+
+    def __init__(self, bus: Bus, address: int, joint: str = "") -> None:
+        super().__init__(bus, address, joint or f"0x{address:02x}")
+        self.bus: Bus = bus
         self.stats = V2LinkStats()
         self.seq = 0
         self.last: V2State | None = None
@@ -133,7 +131,7 @@ class V2Link:
             else:
                 previous = self.seq
             self.bus.sleep(RETRY_PERIOD_S)
-        raise CommError(f"joint {self.name} does not answer in protocol v2")
+        raise CommError(f"joint {self.joint} does not answer in protocol v2")
 
     def exchange(self, cmd: int = V.CMD_NONE, payload: bytes = b"") -> V2State | None:
         """One cycle: send a frame (a setpoint or NONE, not waited for) and take the state.
@@ -151,11 +149,7 @@ class V2Link:
         if state.verdict != V.REASON_OK and pending is not None and pending[0] == previous:
             self.stats.rejected += 1
             raise V2Rejected(f"the joint rejected the command: {V.reason_string(state.verdict)}",
-                             state.verdict, self.name, state.flags)
-
-    def post(self, cmd: int, payload: bytes) -> V2State | None:
-        """Send a frame without waiting for or checking its verdict."""
-        return self._transfer(self._frame(cmd, payload))
+                             state.verdict, self.joint, state.flags)
 
     def send(self, cmd: int, payload: bytes) -> V2State | None:
         """A setpoint for this cycle: its verdict is checked by the next exchange."""
@@ -163,9 +157,9 @@ class V2Link:
         self._pending = (self.seq, b"")
         return state
 
-    def command(self, cmd: int, payload: bytes) -> V2State:
+    def await_verdict(self, cmd: int, payload: bytes) -> V2State:
         """Send a command and wait for its verdict (retransmitting it unchanged); the state that
-        carries the verdict. Raises V2Rejected or CommError."""
+        carries the verdict. Raises LinkRejected or CommError."""
         frame = self._frame(cmd, payload)
         seq = self.seq
         for attempt in range(VERDICT_ATTEMPTS):
@@ -178,10 +172,10 @@ class V2Link:
             if state.verdict != V.REASON_OK:
                 self.stats.rejected += 1
                 raise V2Rejected(f"the joint rejected {_name(cmd)}: {V.reason_string(state.verdict)}",
-                                 state.verdict, self.name, state.flags)
+                                 state.verdict, self.joint, state.flags)
             return state
         self.stats.unacknowledged += 1
-        raise CommError(f"joint {self.name} did not acknowledge {_name(cmd)} "
+        raise CommError(f"joint {self.joint} did not acknowledge {_name(cmd)} "
                         f"within {VERDICT_ATTEMPTS} exchanges")
 
     def poll(self) -> V2State:
@@ -192,7 +186,31 @@ class V2Link:
             state = self.exchange()
             if state is not None:
                 return state
-        raise CommError(f"joint {self.name} sent no intact, fresh state in {VERDICT_ATTEMPTS} exchanges")
+        raise CommError(f"joint {self.joint} sent no intact, fresh state in {VERDICT_ATTEMPTS} exchanges")
+
+    # ---- the link interface ----
+
+    def read(self, reg: P.Register) -> tuple[tuple, int]:
+        """The registers the state block carries; any other exists in the legacy map only."""
+        if reg.addr not in STATE_REGISTERS:
+            raise IncorrectStateError(f"{reg.name} is not in the v2 state block (the legacy map has it)",
+                                      joint=self.joint)
+        state = self.poll()
+        if reg.addr == P.PING:
+            return (P.ACK,), state.flags
+        return ((state.position_deg,) if reg.addr == P.ANGLEMOVED else (state.velocity_rpm,)), state.flags
+
+    def command(self, command: Command) -> int:
+        return self.await_verdict(command.register, command.payload).flags
+
+    def cycle(self, setpoint: Command | None) -> LinkState | None:
+        """One exchange carrying `setpoint`, whose verdict the next cycle checks."""
+        state = self.exchange() if setpoint is None else self.send(setpoint.register, setpoint.payload)
+        return None if state is None else LinkState(state.flags, state.position_deg, state.velocity_rpm)
+
+    @property
+    def lost(self) -> bool:
+        return self.bad_in_a_row >= LOST_AFTER
 
 
 def _name(cmd: int) -> str:

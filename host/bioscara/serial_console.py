@@ -91,6 +91,7 @@ class JointConsole:
         self._t0 = time.monotonic()
         self.reconnects = 0
         self.trace_samples = 0
+        self.lines_received = 0  # every line from the port, trace samples included
         self._thread = threading.Thread(target=self._read_loop, name=f"console {path}", daemon=True)
         self._thread.start()
 
@@ -186,6 +187,7 @@ class JointConsole:
                     self._dispatch(line)
 
     def _dispatch(self, line: str) -> None:
+        self.lines_received += 1
         values = parse_trace(line)
         if values is None:
             self._on_line(line)

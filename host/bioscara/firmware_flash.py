@@ -109,9 +109,10 @@ def joint_config(joint: str) -> tuple[bytes, firmware_config.JointConfig]:
     return text, cfg
 
 
-def user_joint_config(path: str) -> tuple[bytes, firmware_config.JointConfig]:
-    """A joint configuration the user wrote (your pins, driver address, sense resistor...),
-    validated as the firmware will validate it at boot; ConfigError lists every problem."""
+def user_joint_config(path: str, backend: str = "pico") -> tuple[bytes, firmware_config.JointConfig]:
+    """A joint configuration the user wrote (your pins, driver address, sense resistor...) for a
+    board whose motor backend is `backend` ("pico", or "s32": bioscara.s32flash), validated as the
+    firmware will validate it at boot; ConfigError lists every problem."""
     try:
         text = Path(path).read_bytes()
     except OSError as exc:
@@ -127,8 +128,9 @@ def user_joint_config(path: str) -> tuple[bytes, firmware_config.JointConfig]:
     cfg = firmware_config.parse(data, path)
     if not cfg.valid:
         raise ConfigError("\n".join(cfg.errors))
-    if cfg.motor.get("backend") != "pico":
-        raise ConfigError(f"{path}: motor.backend must be \"pico\" on a board (the \"sim\" backend is the simulator's)")
+    if cfg.motor.get("backend") != backend:
+        raise ConfigError(f"{path}: motor.backend must be \"{backend}\" on this board (the \"sim\" backend is the "
+                          "simulator's)")
     return text, cfg
 
 

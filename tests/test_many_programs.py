@@ -1,0 +1,205 @@
+"""One arm, many programs (issue 25): programs that only read run beside the one that commands,
+on the shared simulated arm, each a real process in real time, as a user runs them. Every wait is
+a bounded wait on a condition; every assertion is on what the user sees (exit status, messages,
+positions)."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import threading
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+
+from bioscara import sim_service
+from sim_session import bioscara, quick_config, state_dir, wait_until  # noqa: F401 (fixtures)
+
+Spawn = Callable[..., subprocess.Popen[str]]
+
+
+def _run(spawn: Spawn, *argv: str, timeout: float = 60.0) -> tuple[int, str, str]:
+    process = spawn(*argv)
+    out, err = process.communicate(timeout=timeout)
+    return process.returncode, out, err
+
+
+def _at(out: str, joint: str) -> float:
+    """Where `bioscara move` says the joint ended (joint units)."""
+    found = re.search(rf"^{joint} at ([+-]\d+\.\d+) ", out, flags=re.M)
+    assert found, out
+    return float(found.group(1))
+
+
+def _commander(state_dir: Path) -> dict | None:
+    """Who commands the shared arm, as its record in the state directory says."""
+    try:
+        return json.loads((state_dir / "arm-sim.json").read_text())
+    except (OSError, ValueError):
+        return None
+
+
+@pytest.fixture
+def config(tmp_path: Path, state_dir: Path) -> str:
+    """The quick arm; a 1 s watchdog: the shared machine can stall the simulated arm's process
+    beyond the shipped 100 ms (the host's silence a deadman would then see is not this test's)."""
+    return str(quick_config(tmp_path, watchdog_ms=1000))
+
+
+class Lines:
+    """What a background program prints, line by line, as it prints it."""
+
+    def __init__(self, process: subprocess.Popen[str]) -> None:
+        self.process = process
+        self.lines: list[str] = []
+        assert process.stdout is not None
+        self._reader = threading.Thread(target=lambda: self.lines.extend(process.stdout), daemon=True)  # type: ignore[arg-type]
+        self._reader.start()
+
+    def finish(self, timeout: float = 20.0) -> tuple[list[str], str]:
+        self.process.send_signal(signal.SIGINT)
+        self.process.wait(timeout=timeout)
+        self._reader.join(timeout=timeout)
+        assert self.process.stderr is not None
+        return self.lines, self.process.stderr.read()
+
+
+def test_a_monitor_beside_home_all_and_a_move_sees_both_and_disturbs_neither(config: str, bioscara: Spawn) -> None:
+    monitor = Lines(bioscara("monitor", "--config", config, "--rate", "20", "--json"))
+    assert wait_until(lambda: len(monitor.lines) >= 2, timeout=30), "the monitor samples"
+    code, out, err = _run(bioscara, "home", "all", "--config", config, timeout=120)
+    assert code == 0, err
+    code, out, err = _run(bioscara, "move", "j3", "1.0", "--config", config)
+    assert code == 0 and _at(out, "j3") == pytest.approx(1.0, abs=2e-3), err
+    count = len(monitor.lines)
+    assert wait_until(lambda: len(monitor.lines) >= count + 2), "the monitor samples on"
+    lines, err = monitor.finish()
+    samples = [json.loads(line) for line in lines]
+    assert monitor.process.returncode == 0 and samples[-1]["summary"]["errors"] == 0, err
+    j3 = [next(j for j in s["joints"] if j["joint"] == "j3") for s in samples[:-1]]
+    assert j3[0]["position"] is None and "NOTHOMED" in j3[0]["flags"]
+    assert any(j["position"] is not None and j["position"] > 2.5 for j in j3), "it saw j3 homed at its stop"
+    assert j3[-1]["position"] == pytest.approx(1.0, abs=0.01) and j3[-1]["flags"] == [], "and where the move left it"
+
+
+def test_info_beside_a_move_shows_what_the_commander_reads(config: str, state_dir: Path, bioscara: Spawn) -> None:
+    assert _run(bioscara, "home", "j1", "--config", config, timeout=120)[0] == 0
+    move = bioscara("move", "j1", "2.5", "--config", config)  # 5.5 rad at 1 rad/s
+    assert wait_until(lambda: _commander(state_dir) is not None)
+    code, out, err = _run(bioscara, "info", "j1", "--config", config, "--json")
+    assert code == 0, err
+    info = json.loads(out)
+    assert info["commanded_by"] == {"pid": move.pid, "program": f"bioscara move j1 2.5 --config {config}"}
+    assert -3.1 < info["position"] < 2.51 and info["enabled"] and info["spec_matches"]
+    out, err = move.communicate(timeout=60)
+    assert move.returncode == 0 and _at(out, "j1") == pytest.approx(2.5, abs=2e-3), err
+
+
+def test_a_second_commander_is_refused_by_name_then_takes_over_when_asked(config: str, state_dir: Path,
+                                                                          bioscara: Spawn) -> None:
+    assert _run(bioscara, "home", "j1", "--config", config, timeout=120)[0] == 0
+    first = bioscara("move", "j1", "2.5", "--config", config)
+    assert wait_until(lambda: _commander(state_dir) is not None)
+    code, out, err = _run(bioscara, "move", "j1", "0.0", "--config", config)
+    assert code == 1 and not out
+    assert f"the arm on sim: is commanded by pid {first.pid} (bioscara move j1 2.5 --config {config})" in err
+    assert "--take-over" in err and "Traceback" not in err
+    assert first.poll() is None, "the refused program disturbed nothing"
+    code, out, err = _run(bioscara, "move", "j1", "0.0", "--config", config, "--take-over")
+    assert code == 0 and _at(out, "j1") == pytest.approx(0.0, abs=2e-3), err
+    assert first.wait(timeout=10) != 0, "the first program was stopped"
+    code, out, err = _run(bioscara, "info", "j1", "--config", config, "--json")
+    info = json.loads(out)
+    assert code == 0 and info["commanded_by"] is None and info["position"] == pytest.approx(0.0, abs=0.01)
+
+
+SCRIPT = """
+import json, time
+from bioscara import motion
+from bioscara.communicator import Communicator
+from bioscara.hardware import open_arm
+
+with open_arm() as arm:
+    arm.activate()
+    comm = Communicator(arm, frequency=100.0)
+    motion.home(arm, comm, ["j1", "j3"])
+    motion.move_to(arm, comm, {"j1": 0.5, "j3": -1.0})
+    time.sleep(5.0)  # the script does something else; nobody talks to the joints
+    arm.cycle()
+    print(json.dumps({name: [aj.joint.is_enabled(), aj.state.position] for name, aj in arm.joints.items()
+                      if name in ("j1", "j3")}), flush=True)
+"""
+
+
+def test_a_script_that_homes_moves_and_sleeps_finds_its_joints_still_enabled(
+        config: str, private_home: Path, tmp_path: Path) -> None:
+    user_config = private_home / "config" / "bioscara" / "arm.toml"
+    user_config.parent.mkdir(parents=True)
+    user_config.write_text(Path(config).read_text())  # the script's open_arm() reads it, as the CLI does
+    script = tmp_path / "script.py"
+    script.write_text(SCRIPT)
+    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    result = json.loads(done.stdout.splitlines()[-1])
+    assert result["j1"][0] and result["j3"][0], f"a holding joint was disabled while the script slept: {result}"
+    assert result["j1"][1] == pytest.approx(0.5, abs=0.01) and result["j3"][1] == pytest.approx(-1.0, abs=0.01)
+
+
+def test_kill_9_of_a_commander_then_of_the_service(config: str, state_dir: Path, bioscara: Spawn) -> None:
+    assert _run(bioscara, "home", "j1", "--config", config, timeout=120)[0] == 0
+    move = bioscara("move", "j1", "2.5", "--config", config)
+    assert wait_until(lambda: _commander(state_dir) is not None)
+    move.kill()
+    move.wait(timeout=10)
+    code, out, err = _run(bioscara, "move", "j1", "0.0", "--config", config)
+    assert code == 0 and _at(out, "j1") == pytest.approx(0.0, abs=2e-3), f"a killed commander holds nothing: {err}"
+    status = sim_service.status(state_dir)
+    assert status is not None
+    os.kill(status["pid"], signal.SIGKILL)
+    assert wait_until(lambda: sim_service.status(state_dir) is None)
+    code, out, err = _run(bioscara, "info", "j1", "--config", config, "--json")
+    assert code == 0, err
+    info = json.loads(out)
+    assert info["position"] is None and not info["homed"], "a new simulated arm, booted afresh"
+
+
+HOLDER = """
+import sys
+from bioscara.bus.smbus import SMBusBus
+bus = SMBusBus(1, smbus_factory=lambda number: object())  # /dev/i2c-1 as every process on a Pi opens it
+bus.commander.claim()
+print("held", flush=True)
+sys.stdin.read()  # commands until its input closes
+"""
+
+
+def test_on_a_raspberry_pi_bus_every_process_meets_the_same_commander_lock() -> None:
+    from bioscara.bus.smbus import SMBusBus
+    from bioscara.commander import ArmBusyError
+
+    bus = SMBusBus(1, smbus_factory=lambda number: object())
+    assert bus.arm_lock_path() == Path(os.environ["XDG_STATE_HOME"]) / "bioscara" / "arm-smbus-1.lock"
+    holder = subprocess.Popen([sys.executable, "-c", HOLDER], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                              text=True)
+    try:
+        assert holder.stdout is not None and holder.stdout.readline() == "held\n"
+        commander = bus.commander
+        assert commander is not None
+        with pytest.raises(ArmBusyError, match=f"the arm on smbus:1 is commanded by pid {holder.pid} "):
+            commander.claim()
+        with commander.watch() as seen:
+            assert seen is not None and seen.pid == holder.pid, "a reader learns who commands, and reads from it"
+        assert holder.stdin is not None
+        holder.stdin.close()
+        assert holder.wait(timeout=10) == 0
+        commander.claim()  # the lock is free once that program has ended
+        commander.release()
+    finally:
+        if holder.poll() is None:
+            holder.kill()
+            holder.wait()

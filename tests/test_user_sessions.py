@@ -1,0 +1,232 @@
+"""A user's sessions with the shared simulated arm: real `bioscara` processes in real time,
+signalled and piped as a person or a supervisor would. Each waits on what the process prints
+(bounded), never on a guessed delay.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import re
+import selectors
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from tests.test_sim_service import quick_config, state_dir  # noqa: F401 (a fixture)
+
+BIOSCARA = [sys.executable, "-m", "bioscara.cli"]
+PROGRESS = re.compile(r"^j1 at ([-+][0-9.]+) rad, target ([-+][0-9.]+) rad")
+STOPPED = re.compile(r"^stopped j1 at ([-+][0-9.]+) rad$", re.M)
+
+
+def bioscara(*argv: str, timeout: float = 60.0) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([*BIOSCARA, *argv], capture_output=True, text=True, timeout=timeout)
+
+
+@contextlib.contextmanager
+def running(*argv: str) -> Iterator[subprocess.Popen[str]]:
+    """`bioscara ARGV` in the background; killed at the end if a failed assertion left it running."""
+    # SIGINT as a terminal delivers it, even when pytest runs as a background job (which ignores it)
+    process = subprocess.Popen([*BIOSCARA, *argv], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                               preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    try:
+        yield process
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.communicate()
+
+
+def wait_for_line(stream: object, pattern: re.Pattern[str], timeout: float) -> tuple[re.Match[str] | None, list[str]]:
+    """Read lines until one matches `pattern` (None after `timeout` s or at the end of the stream)."""
+    seen: list[str] = []
+    deadline = time.monotonic() + timeout
+    with selectors.DefaultSelector() as selector:
+        selector.register(stream, selectors.EVENT_READ)  # type: ignore[arg-type]
+        while time.monotonic() < deadline:
+            if not selector.select(deadline - time.monotonic()):
+                break
+            line = stream.readline()  # type: ignore[attr-defined]
+            if not line:
+                break
+            seen.append(line.rstrip("\n"))
+            match = pattern.match(line)
+            if match:
+                return match, seen
+    return None, seen
+
+
+def position(config: Path) -> float:
+    result = bioscara("info", "j1", "--json", "--config", str(config))
+    assert result.returncode == 0, result.stderr
+    return float(json.loads(result.stdout)["position"])
+
+
+def stays(config: Path, where: float) -> None:
+    """Where the command said j1 stopped is where it stays: no change over the next second of reads."""
+    deadline = time.monotonic() + 1.0
+    while time.monotonic() < deadline:
+        assert abs(position(config) - where) < 2e-3
+
+
+@pytest.mark.parametrize("signals", [(signal.SIGINT, signal.SIGTERM, signal.SIGHUP)])
+def test_a_signal_stops_a_move_midway_and_says_where(state_dir: Path, tmp_path: Path,  # noqa: F811
+                                                     signals: tuple[signal.Signals, ...]) -> None:
+    config = str(quick_config(tmp_path))
+    homed = bioscara("home", "j1", "--config", config)
+    assert homed.returncode == 0, homed.stderr
+    for signum in signals:
+        start = position(Path(config))
+        target = -2.5 if start > 0 else 2.5  # the far side: seconds of motion to interrupt
+        with running("move", "j1", str(target), "--config", config) as move:
+            # The progress lines (stderr, one every 0.5 s when not on a terminal) until j1 has gone 0.5 rad.
+            moved = None
+            seen: list[str] = []
+            while moved is None:
+                match, lines = wait_for_line(move.stderr, PROGRESS, 30.0)
+                seen += lines
+                assert match is not None, f"no progress line showing the move: {seen}"
+                assert float(match.group(2)) == target
+                if abs(float(match.group(1)) - start) >= 0.5:
+                    moved = float(match.group(1))
+            assert abs(moved - target) > 0.5, f"the move was over before it could be interrupted: {seen}"
+            move.send_signal(signum)
+            out, err = move.communicate(timeout=30)
+        assert move.returncode == 128 + signum, (move.returncode, err)
+        assert "Traceback" not in err
+        stopped = STOPPED.search(err)
+        assert stopped is not None, err
+        where = float(stopped.group(1))
+        assert abs(where - target) > 0.1, "the joint stopped short of the target"
+        stays(Path(config), where)
+
+
+def pipe_into_head(lines: int, *argv: str) -> tuple[int, str, str]:
+    """`bioscara ARGV | head -LINES`: bioscara's exit status and stderr, head's output."""
+    producer = subprocess.Popen([*BIOSCARA, *argv], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    head = subprocess.Popen(["head", f"-{lines}"], stdin=producer.stdout, stdout=subprocess.PIPE, text=True)
+    assert producer.stdout is not None
+    producer.stdout.close()  # head holds the pipe's only reading end: when it exits, the pipe is broken
+    try:
+        shown, _ = head.communicate(timeout=60)
+        _, err = producer.communicate(timeout=60)
+    finally:
+        for process in (producer, head):
+            if process.poll() is None:
+                process.kill()
+                process.wait()
+    return producer.returncode, err, shown
+
+
+def test_monitor_into_head_ends_quietly() -> None:
+    status, err, shown = pipe_into_head(2, "monitor", "--bus", "sim:virtual")
+    assert len(shown.splitlines()) == 2 and " rad/s " in shown
+    assert status == 141 and err == "", err  # 128 + SIGPIPE, as `yes | head`; no traceback, no error
+
+
+def test_console_into_head_ends_quietly_and_the_bridge_is_named(state_dir: Path) -> None:  # noqa: F811
+    from bioscara import sim_service
+
+    assert bioscara("sim", "start").returncode == 0
+    status = sim_service.status(state_dir)
+    assert status is not None
+    code, err, shown = pipe_into_head(3, "console", status["consoles"]["J1"], "-c", "status", "-c", "regs",
+                                      "--duration", "5")
+    assert len(shown.splitlines()) == 3 and shown.startswith("J1 at 0x11")
+    assert code == 141 and "Traceback" not in err and err == "", err
+    bridge = bioscara("console", status["bridge"], "-c", "status")
+    assert bridge.returncode == 1
+    assert f"nothing answered on {status['bridge']}: it is not a joint's debug console" in bridge.stderr
+
+
+def test_sigterm_stops_the_demo_midway_and_says_where() -> None:
+    """The demo's arm (the in-process simulator here: BIOSCARA_BUS=sim:virtual) stops like `move`'s."""
+    with running("demo") as demo:
+        step, seen = wait_for_line(demo.stdout, re.compile(r"^  above pick: done"), 120.0)
+        assert step is not None, seen
+        demo.send_signal(signal.SIGTERM)
+        _, err = demo.communicate(timeout=60)
+    assert demo.returncode == 128 + signal.SIGTERM, err
+    assert "interrupted (SIGTERM)" in err and "Traceback" not in err
+    assert re.search(r"^stopped j1 at [-+]\d\.\d{5} rad, j2 at [-+]\d\.\d{5} m, j3 at .*, j4 at ", err, re.M), err
+
+
+def test_a_directory_in_the_sockets_place_is_a_clear_error(state_dir: Path) -> None:  # noqa: F811
+    (state_dir / "sim.sock").mkdir(parents=True)
+    result = bioscara("scan")
+    assert result.returncode == 1 and "Traceback" not in result.stderr
+    assert f"{state_dir / 'sim.sock'} is a directory, not the simulated arm's socket: remove it" in result.stderr
+    assert "Traceback" not in (state_dir / "sim.log").read_text()
+
+
+class RecordingBus:
+    def __init__(self) -> None:
+        self.transfers: list[tuple[int, bytes | None, int]] = []
+
+    def transfer(self, addr: int, write: bytes | None, read_len: int) -> bytes:
+        self.transfers.append((addr, write, read_len))
+        return bytes(read_len)
+
+
+def test_the_service_drops_a_request_whose_client_gave_up(tmp_path: Path) -> None:
+    """A client that timed out (it reported a CommError and hung up) must not see its command
+    applied later, when the busy service reaches it (a -360 degree turn after the error)."""
+    import socket
+    from types import SimpleNamespace
+
+    from bioscara import sim_service
+
+    path = tmp_path / "s.sock"
+    listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    listener.bind(str(path))
+    listener.listen(4)
+    listener.setblocking(False)
+    bus = RecordingBus()
+    frontend = sim_service.SocketFrontend(SimpleNamespace(bus=bus), listener, {})
+    request = bytes((0x11, 1, 1, 0x2A, 1, 2, 3, 4))  # XFER to 0x11: a command frame, 1 byte read back
+    body = bytes((sim_service.XFER,)) + request
+    frame = sim_service._LENGTH.pack(len(body)) + body
+    try:
+        gone = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        gone.connect(str(path))
+        gone.sendall(frame)
+        gone.close()  # the client's timeout: it hangs up before the service got to it
+        staying = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        staying.connect(str(path))
+        staying.sendall(frame)
+        staying.settimeout(5)
+        frontend.poll()
+        assert staying.recv(5)[4] == sim_service.OK, "a client that waits is answered"
+        assert bus.transfers == [(0x11, bytes((0x2A, 1, 2, 3, 4)), 1)], "once: the hung-up client's was dropped"
+        staying.close()
+    finally:
+        frontend.close()
+        listener.close()
+
+
+def test_sigterm_stops_a_shell_script_midway_and_says_where(state_dir: Path, tmp_path: Path) -> None:  # noqa: F811
+    config = str(quick_config(tmp_path))
+    assert bioscara("home", "j1", "--config", config).returncode == 0
+    start = position(Path(config))
+    target = -2.5 if start > 0 else 2.5
+    script = tmp_path / "move.txt"
+    # A second of the move, then a long wait: the signal comes once the script says it waits.
+    script.write_text(f"configure\nactivate\nmode j1 position\nset j1 position {target}\nwait 1\nwait 30\n")
+    with running("shell", "--script", str(script), "--config", config) as shell:
+        started, seen = wait_for_line(shell.stdout, re.compile(r"^> wait 30$"), 60.0)
+        assert started is not None, seen
+        shell.send_signal(signal.SIGTERM)
+        _, err = shell.communicate(timeout=30)
+    assert shell.returncode == 128 + signal.SIGTERM, err
+    stopped = re.search(r"^leaving the shell: stopped j1 at ([-+][0-9.]+) rad, j2 \(not homed\), j3 \(not homed\), "
+                        r"j4 \(not homed\); the joints keep holding$", err, re.M)
+    assert stopped is not None and "Traceback" not in err, err
+    where = float(stopped.group(1))
+    assert abs(where - start) > 0.3 and abs(where - target) > 0.1, "stopped midway"
+    stays(Path(config), where)
