@@ -27,8 +27,8 @@ def _home_all(arm: Arm, comm: Communicator) -> None:
     motion.home(arm, comm, timeout=120)
 
 
-def test_configure_activate_home_move_velocity_stop_shutdown(arm: Arm, comm: Communicator, bus: SimBus,
-                                                             config: ArmConfig, tmp_path) -> None:
+def test_homing_drives_each_joint_to_its_end_stop_and_measures_where_it_is(arm: Arm, comm: Communicator,
+                                                                           bus: SimBus) -> None:
     _home_all(arm, comm)
     for aj in arm.joints.values():
         end = aj.config.max if aj.config.homing.direction > 0 else aj.config.min
@@ -42,6 +42,9 @@ def test_configure_activate_home_move_velocity_stop_shutdown(arm: Arm, comm: Com
         bound = mechanics.homing_error_bound_deg(name.upper(), aj.config.homing.current)
         assert error_deg < bound, f"{name}: measured position off by {error_deg:.2f} motor degrees"
 
+
+def test_a_position_move_brings_every_joint_to_its_target(arm: Arm, comm: Communicator, bus: SimBus) -> None:
+    _home_all(arm, comm)
     targets = {"j1": 0.5, "j2": 0.2, "j3": -1.0, "j4": 1.5}
     final = motion.move_to(arm, comm, targets, tolerance=1e-3, timeout=60)
     for name, target in targets.items():
@@ -50,6 +53,9 @@ def test_configure_activate_home_move_velocity_stop_shutdown(arm: Arm, comm: Com
         bound = mechanics.position_error_bound_deg(name.upper(), arm[name].config.homing.current)
         assert math.degrees(abs(true - target) * abs(arm[name].config.reduction)) < bound, (name, true)
 
+
+def test_velocity_mode_turns_at_the_commanded_speed_and_zero_stops_it(arm: Arm, comm: Communicator) -> None:
+    _home_all(arm, comm)
     arm.switch_modes(start=["j1/velocity"], stop=["j1/position"])
     arm.set_command("j1", "velocity", 0.2)
     start = arm["j1"].state.position
@@ -60,6 +66,8 @@ def test_configure_activate_home_move_velocity_stop_shutdown(arm: Arm, comm: Com
     comm.run_for(1.0)
     assert abs(arm["j1"].state.velocity) < 1e-3
 
+
+def test_the_gripper_reaches_both_widths(comm: Communicator, bus: SimBus, config: ArmConfig, tmp_path) -> None:
     assert config.gripper is not None
     gripper = MockGripper(replace(config.gripper, state_file=str(tmp_path / "gripper")), clock=bus.monotonic)
     gripper.init()
@@ -70,6 +78,11 @@ def test_configure_activate_home_move_velocity_stop_shutdown(arm: Arm, comm: Com
         assert gripper.get_position() == pytest.approx(width)
     gripper.disable()
 
+
+def test_deactivate_disables_every_joint_and_shutdown_finalizes(arm: Arm, comm: Communicator) -> None:
+    arm.configure()
+    arm.activate()
+    comm.run_for(0.2)
     arm.deactivate()
     assert all(not aj.joint.is_enabled() for aj in arm.joints.values())
     arm.shutdown()

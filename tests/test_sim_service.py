@@ -178,24 +178,38 @@ def test_the_idle_exit_comes_from_the_configuration_or_the_command(
     assert "BIOSCARA_SIM_IDLE_EXIT" in capsys.readouterr().err
 
 
+class _WallClock:
+    """The server's wall clock, moved by the test: what the server does with the time that passes
+    is then exact, however long this machine takes to run it."""
+
+    def __init__(self) -> None:
+        self.now = 0.0
+
+    def monotonic(self) -> float:
+        return self.now
+
+
 class _Probe:
     """A frontend with nothing connected: notes the simulated and the wall clock when a byte arrives."""
 
-    def __init__(self, server: SimServer) -> None:
+    def __init__(self, server: SimServer, wall: _WallClock) -> None:
         self.server = server
+        self.wall = wall
         self.inside, self.outside = socket.socketpair()
         self.inside.setblocking(False)
         self.first: tuple[int, float] | None = None
         self.seen: tuple[int, float] | None = None
+        self.waits_at = -1  # simulated time (us) at which the server last went to wait for input
 
     def fds(self) -> list[int]:
+        self.waits_at = self.server.clock.now_us  # asked right before the server waits for input
         return [self.inside.fileno()]
 
     def busy(self) -> bool:
         return False
 
     def poll(self) -> None:
-        now = (self.server.clock.now_us, time.monotonic())
+        now = (self.server.clock.now_us, self.wall.monotonic())
         if self.first is None:
             self.first = now
         try:
@@ -205,17 +219,30 @@ class _Probe:
             pass
 
 
-def test_at_rest_the_joints_follow_the_wall_clock_and_input_finds_them_caught_up() -> None:
+def test_at_rest_the_joints_follow_the_wall_clock_and_input_finds_them_caught_up(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    from bioscara import sim_server
+
+    wall = _WallClock()
+    monkeypatch.setattr(sim_server, "time", wall)
     server = SimServer(SPECS)
-    probe = _Probe(server)
+    probe = _Probe(server, wall)
     server.add_frontend(probe)
     with server:
         assert wait_until(lambda: probe.first is not None)
-        time.sleep(0.7)  # a few of the long waits at rest
+        assert probe.first is not None
+        start_us = probe.first[0]
+        # The wall clock moves only while the server waits for input, as it would at rest.
+        assert wait_until(lambda: probe.waits_at >= start_us)
+        for _ in range(3):  # steps shorter than a long wait at rest: no input, so nothing wakes the server
+            wall.now += 0.2
+            target = start_us + round(wall.now * 1e6)
+            assert wait_until(lambda: probe.waits_at >= target), "at rest, it follows the wall clock"
         assert not server.moving()
+        wall.now += 0.1  # then input, a moment into the next long wait
         probe.outside.send(b"x")
         assert wait_until(lambda: probe.seen is not None)
-    assert probe.first is not None and probe.seen is not None
+    assert probe.seen is not None
     simulated = (probe.seen[0] - probe.first[0]) / 1e6
-    wall = probe.seen[1] - probe.first[1]
-    assert wall >= 0.7 and simulated == pytest.approx(wall, abs=0.1), "served at the wall clock, not a wait behind"
+    assert probe.seen[1] == pytest.approx(0.7) and simulated == pytest.approx(0.7, abs=1e-6), \
+        "served at the wall clock, not a wait behind"

@@ -177,16 +177,18 @@ class SimServer:
         pty_fds = [pty.fileno() for pty in self._ptys]
         wall_start = time.monotonic()
         sim_start = self.clock.now_us
-        wait = _TURN_S
+        wait = waited = _TURN_S
         idle_since: float | None = None
         while not self._stop.is_set():
             wall = time.monotonic()
             target = sim_start + int((wall - wall_start) * 1e6)
             behind = target - self.clock.now_us
-            allowed = int(wait * 1e6) + _MAX_CATCH_UP_US
+            allowed = int(waited * 1e6) + _MAX_CATCH_UP_US
             if behind > allowed:
-                # This process was held up: let simulated time slip rather than replay the pause
-                # as silence on the bus, which the joints' deadman would take for a lost host.
+                # This process was held up, or cannot simulate as fast as time passes (a loaded
+                # machine): let simulated time slip rather than replay the pause as silence on the
+                # bus, which the joints' deadman would take for a lost host, and rather than make
+                # every request wait for a catch-up longer than the last one.
                 sim_start -= behind - allowed
                 target = self.clock.now_us + allowed
             if wait > _TURN_S:  # idle: nobody waited on an answer meanwhile, one batch
@@ -195,10 +197,12 @@ class SimServer:
                 self.bus.run_until(min(target, self.clock.now_us + _SLICE_US))
                 self._serve()
             self._serve()
+            waiting_since = time.monotonic()  # the time spent waiting for input is what the joints rested
             fds = pty_fds + [fd for f in self._frontends for fd in f.fds()]
             if self.moving():
                 wait, idle_since = _TURN_S, None
                 select.select(fds, [], [], wait)
+                waited = min(time.monotonic() - waiting_since, wait)
                 continue
             wait = IDLE_TURN_S  # every joint rests: only input can change that, and input ends the wait
             if any(frontend.busy() for frontend in self._frontends):
@@ -210,6 +214,7 @@ class SimServer:
                 return
             if select.select(fds, [], [], wait)[0]:
                 idle_since = None  # input on a terminal or the socket: somebody uses the arm
+            waited = min(time.monotonic() - waiting_since, wait)
 
     def idle(self) -> bool:
         """No frontend has a client and no joint moves (see `moving`)."""

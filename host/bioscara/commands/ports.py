@@ -40,6 +40,10 @@ def runtime_of(vid: int | None, pid: int | None, product: str | None, interface:
         return "micropython"
     return None
 _STATUS = re.compile(r"\b(J[1-4]) at 0x([0-9a-f]{2})")
+# Longest wait for a joint's status line or a REPL's prompt. A board answers in milliseconds, but a
+# busy one (a joint homing, a loaded host, an emulated board) can take far longer; the wait ends as
+# soon as the answer is complete, so only a port nothing answers on costs all of it.
+ANSWER_WAIT_S = 3.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -73,9 +77,11 @@ def probe(path: str) -> dict[str, Any]:
         port.reset_input_buffer()
         port.write(b"\r\nstatus\r\n")
         seen = b""
-        deadline = time.monotonic() + 0.5
-        while time.monotonic() < deadline and b"\n" not in seen.partition(b"at 0x")[2]:
+        deadline = time.monotonic() + ANSWER_WAIT_S
+        while True:  # read before looking at the clock: a host held up meanwhile still sees the answer
             seen += port.read(256)
+            if _answered(seen) or time.monotonic() >= deadline:
+                break
     except OSError as exc:
         return {"kind": "unavailable", "detail": str(exc)}
     finally:
@@ -92,6 +98,13 @@ def probe(path: str) -> dict[str, Any]:
         return {"kind": "MicroPython board", "detail": "REPL (no joint firmware running)",
                 "use": f"bioscara flash {path} --joint j1"}
     return {"kind": "unknown", "detail": "neither a bridge, a joint nor a REPL answered"}
+
+
+def _answered(seen: bytes) -> bool:
+    """A complete answer to `status`: the joint's status line, or the REPL's traceback and prompt."""
+    if b"\n" in seen.partition(b"at 0x")[2]:
+        return True
+    return b"Traceback" in seen and seen.rstrip().endswith(b">>>")
 
 
 def run(args: argparse.Namespace, session: Session) -> int:
