@@ -137,8 +137,9 @@ def test_home_sets_nothomed_and_busy_in_its_reply_then_runs_in_main_loop():
     rig.motor.error = 0.0
     assert rig.command("HOME", 1, 10, 30, 15) == ENABLED | P.FLAG_NOTHOMED | P.FLAG_BUSY
     rig.run_ms(600)
-    assert rig.motor.calls[:4] == [("set_current", 15), ("set_hold_current", 15), ("stop", True),
-                                   ("set_rpm", 10)], "energized (holding) before it settles"
+    effects = [call for call in rig.motor.calls if call != ("magnet",)]  # the magnet check only reads
+    assert effects[:4] == [("set_current", 15), ("set_hold_current", 15), ("stop", True),
+                           ("set_rpm", 10)], "energized (holding) before it settles"
     assert rig.core.flags & P.FLAG_BUSY, "holds BUSY until the end stop"
     rig.motor.error = 31.0
     rig.run_ms(50)
