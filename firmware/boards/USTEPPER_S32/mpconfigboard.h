@@ -22,6 +22,9 @@
 #define MICROPY_PY_ARRAY_SLICE_ASSIGN (1)
 #define MICROPY_PY_JSON             (1)
 #define MICROPY_PY_OS               (1)  // the port's REPL streams go through os.dupterm's hooks
+// Terse errors from the C core (exception types without their messages): 4 KB of flash the
+// frozen firmware needs; the firmware's own messages (config, log lines) are unchanged.
+#define MICROPY_ERROR_REPORTING     (MICROPY_ERROR_REPORTING_TERSE)
 #define MICROPY_EMIT_INLINE_THUMB   (0)
 #define MICROPY_OPT_COMPUTED_GOTO   (0)
 #define MICROPY_PY_BUILTINS_COMPLEX (0)
