@@ -84,11 +84,22 @@ def _script(rig: V2Rig, out: list[Vector]) -> None:
     xfer(bytes([P.PING]), 2, "legacy PING again")
 
 
+def wrapped(vector: Vector) -> int:
+    """Where a v2 read that runs past the end of the memory wraps to the mailbox: from there its
+    bytes depend on whether the END_WRITE handler (a soft IRQ) emptied the mailbox before the read
+    got there, which the chip's scheduler decides, not the protocol (no host reads past the end)."""
+    if not vector.note.startswith("v2"):
+        return len(vector.reply)
+    return V.MEM_SIZE - len(vector.write) % V.MEM_SIZE
+
+
 def compare(vectors: list[Vector], replies: list[bytes]) -> list[str]:
-    """Every transaction whose reply differs, with the differing byte offsets."""
+    """Every transaction whose reply differs, with the differing byte offsets (bytes a read got by
+    wrapping past the end of the memory aside: `wrapped`)."""
     problems = []
     for vector, reply in zip(vectors, replies):
-        if reply != vector.reply:
+        end = wrapped(vector)
+        if len(reply) != len(vector.reply) or reply[:end] != vector.reply[:end]:
             offsets = [i for i in range(max(len(reply), len(vector.reply)))
                        if reply[i:i + 1] != vector.reply[i:i + 1]]
             problems.append(f"{vector.note}: bytes {offsets} {reply.hex()} != {vector.reply.hex()}")

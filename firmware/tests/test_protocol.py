@@ -193,3 +193,4 @@ def test_the_bitwise_crc32_is_zlibs():
     assert P.crc32_bitwise(b"") == 0
     data = bytes(range(256)) * 3
     assert P.crc32_bitwise(data) == P.crc32(data) & 0xFFFFFFFF, "the port's own crc32 where it has one"
+    assert P.crc32_bitwise(data[300:], P.crc32_bitwise(data[:300])) == P.crc32_bitwise(data), "it continues"

@@ -35,7 +35,7 @@ USTEPS_PER_DEG = USTEPS_PER_REV / 360
 
 # On the board, after main.py was interrupted: a fresh controller and its main loop in emulated time.
 BOARD_HELPERS = """
-import json, machine, rp2, struct, time
+import gc, json, machine, rp2, struct, time
 from joint import app
 from joint.config import schema as config
 from joint.spec import protocol as P
@@ -48,8 +48,12 @@ _cfg["boot"].update(max_velocity=200.0, max_acceleration=8000.0)
 with open("/chip_test_config.json", "w") as f:
     json.dump(_cfg, f)
 
+core = cfg = log = None
+
 def make():
     global core, cfg, log
+    core = cfg = log = None  # the previous test's controller frees its heap before the next is built
+    gc.collect()
     rp2.PIO(0).remove_program()
     core, cfg, log = app.build(machine, "/chip_test_config.json")
 

@@ -19,10 +19,12 @@ import sys
 
 
 
-def crc32_bitwise(data):
-    """CRC-32 (zlib's) bit by bit in 16-bit halves, so every step stays a small int: the spec hash
-    on a port built without binascii.crc32 (the uStepper S32 image), computed once at boot."""
-    hi = lo = 0xFFFF
+def crc32_bitwise(data, crc=0):
+    """CRC-32 (zlib's, continuing from `crc` as zlib.crc32 does) bit by bit in 16-bit halves, so
+    every step stays a small int: the spec hash on a port built without binascii.crc32 (the
+    uStepper S32 image), computed once at boot."""
+    hi = (crc >> 16) ^ 0xFFFF
+    lo = (crc & 0xFFFF) ^ 0xFFFF
     for byte in data:
         lo ^= byte
         for _ in range(8):
@@ -476,14 +478,16 @@ def register(key):
 
 
 def spec_hash(registers=REGISTERS):
-    """CRC-32 over a canonical encoding of the register table (identical on both interpreters)."""
+    """CRC-32 over a canonical encoding of the register table (identical on both interpreters),
+    fed a register at a time: a boot on a fragmented heap needs no block the size of the table."""
     out = bytearray(struct.pack("<BB", PROTOCOL_VERSION, ACK))
     for flag, name in FLAG_NAMES:
         out.append(flag)
         out.extend(name.encode())
+    crc = crc32(out)
     for r in registers:
-        out.extend(struct.pack("<BBBBBB", r.addr, r.supported, r.blocking, r.sets, r.clears,
-                               r.zero_sets))
+        out = bytearray(struct.pack("<BBBBBB", r.addr, r.supported, r.blocking, r.sets, r.clears,
+                                    r.zero_sets))
         out.extend(r.name.encode())
         out.append(0)
         for group in (r.write, r.read):
@@ -495,8 +499,8 @@ def spec_hash(registers=REGISTERS):
                 out.extend(f.unit.encode())
                 out.append(0)
                 out.extend(struct.pack("<ff", f.lo, f.hi))
-    out.extend(_v2_spec_bytes())
-    return crc32(bytes(out)) & 0xFFFFFFFF
+        crc = crc32(out, crc)
+    return crc32(_v2_spec_bytes(), crc) & 0xFFFFFFFF
 
 
 SPEC_HASH = spec_hash()
