@@ -203,3 +203,35 @@ def test_on_a_raspberry_pi_bus_every_process_meets_the_same_commander_lock() -> 
         if holder.poll() is None:
             holder.kill()
             holder.wait()
+
+
+def test_a_commander_that_ends_while_a_watcher_asks_it_is_no_read_error(tmp_path: Path) -> None:
+    """The race behind a monitor's error count: the watcher finds the lock held and the record
+    naming the commander, then the command ends before the watcher's question reaches it. The
+    watcher watches again and reads the joint itself, as it does with nobody commanding."""
+    from bioscara.bus.sim import SimBus
+    from bioscara.commander import Commander
+    from bioscara.config import read_config
+    from bioscara.hardware import sim_joint_specs
+    from bioscara.link.base import LinkState
+    from bioscara.link.watched import WatchedLink
+
+    lock = tmp_path / "arm-test.lock"
+    commanding, watching = Commander(lock, "test"), Commander(lock, "test")  # two programs' views
+    commanding.claim()
+    commanding.publish(lambda: {"j1": {"address": 0x11, "read": True, "flags": 0, "position_deg": 1.0,
+                                       "velocity_rpm": 0.0, "offset": 0.0}})
+    asked = watching.published
+
+    def ends_as_it_is_asked(holder):  # type: ignore[no-untyped-def]
+        commanding.release()
+        return asked(holder)
+    watching.published = ends_as_it_is_asked  # type: ignore[method-assign]
+    bus = SimBus(sim_joint_specs(read_config()))
+    try:
+        link = WatchedLink(bus, 0x11, "j1", watching)
+        state = link.cycle(None)
+        assert isinstance(state, LinkState) and link.holder is None, "read from the joint once the commander left"
+        assert state.position_deg != 1.0
+    finally:
+        bus.close()

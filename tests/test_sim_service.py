@@ -48,7 +48,7 @@ def test_state_is_kept_between_commands_and_clients_share_the_arm(
     assert wait_until(lambda: record.exists() and len(record.read_text().splitlines()) > 3)
     assert cli.main(["move", "j3", "1.0", "--config", config]) == 0, "a move (v2) beside the monitor"
     out, err = monitor.communicate(timeout=30)
-    assert monitor.returncode == 0, err
+    assert monitor.returncode == 0, out[-500:] + err
     assert json.loads(out.splitlines()[-1])["summary"]["errors"] == 0
     with open(record) as f:
         f.readline()

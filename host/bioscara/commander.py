@@ -51,6 +51,10 @@ class ArmBusyError(BioscaraError):
     """Another program commands the arm on this bus."""
 
 
+class CommanderLeft(CommError):
+    """The commander a watcher asked let go of the arm meanwhile: watch again."""
+
+
 @dataclass(frozen=True)
 class Holder:
     """The program that commands the arm: its pid, command line and since when (Unix time)."""
@@ -270,7 +274,8 @@ class Commander:
             time.sleep(0.005)
 
     def published(self, holder: Holder) -> dict[str, Any]:
-        """The commander's latest joint states; CommError when it does not answer."""
+        """The commander's latest joint states; CommanderLeft when it has let go since `watch()`
+        named it, CommError when it commands but does not answer."""
         if not holder.socket:
             raise CommError(f"{holder.describe()} does not serve the arm's state yet")
         try:
@@ -282,6 +287,8 @@ class Commander:
                     chunks.append(chunk)
             return dict(json.loads(b"".join(chunks)))
         except (OSError, ValueError) as exc:
+            if self.holder() != holder:  # it ended between our look at the lock and the question
+                raise CommanderLeft(f"{holder.describe()} let go of the arm") from None
             raise CommError(f"{holder.describe()} commands the arm and does not tell its state "
                             f"({getattr(exc, 'strerror', None) or exc})") from None
 

@@ -4,10 +4,11 @@ commanding program): see commander.py for the rules that keep it from disturbing
 from __future__ import annotations
 
 import time
-from typing import Any
+from collections.abc import Callable
+from typing import Any, TypeVar
 
 from ..bus.base import Bus
-from ..commander import Commander, Holder
+from ..commander import Commander, CommanderLeft, Holder
 from ..errors import CommError, IncorrectStateError
 from ..firmware.spec import protocol as P
 from .base import Command, Link, LinkState
@@ -15,6 +16,8 @@ from .legacy import LegacyLink
 
 FRESH_S = 0.005  # one fetch of the commander's state serves every joint read within this long
 READ_WAIT_S = 1.0  # for a commander that has just opened a joint to read it
+WATCH_ATTEMPTS = 3  # commanders that end one after another while a watcher asks each
+T = TypeVar("T")
 
 
 class WatchedLink(Link):
@@ -33,12 +36,29 @@ class WatchedLink(Link):
         self._fetched: tuple[float, dict[str, Any]] | None = None
 
     def read(self, reg: P.Register) -> tuple[tuple, int]:
-        with self.commander.watch() as holder:
-            self.holder = holder
-            entry = None if holder is None else self.published(holder)
-            if entry is None:
-                return self.legacy.read(reg)
-            return self._published_read(holder, entry, reg)
+        return self._watched(lambda holder: self._read_through(holder, reg))
+
+    def _watched(self, through: Callable[[Holder | None], T]) -> T:
+        """`through(holder)` under one watch, and under a new one if the commander it named let
+        go meanwhile (a command ending while we ask it): its leaving is no error of the joint."""
+        attempt = 1
+        while True:
+            with self.commander.watch() as holder:
+                self.holder = holder
+                try:
+                    return through(holder)
+                except CommanderLeft:
+                    if attempt == WATCH_ATTEMPTS:
+                        raise
+            attempt += 1
+            self._fetched = None
+
+    def _read_through(self, holder: Holder | None, reg: P.Register) -> tuple[tuple, int]:
+        entry = None if holder is None else self.published(holder)
+        if entry is None:
+            return self.legacy.read(reg)
+        assert holder is not None
+        return self._published_read(holder, entry, reg)
 
     def published(self, holder: Holder) -> dict[str, Any] | None:
         """This joint's entry in the commander's published state; None if the commander has not
@@ -76,13 +96,14 @@ class WatchedLink(Link):
         (None while a commander is starting and publishes nothing yet: the last state stands)."""
         if setpoint is not None:
             self.command(setpoint)
-        with self.commander.watch() as holder:
-            self.holder = holder
-            if holder is not None and not holder.socket:
-                return None
-            entry = None if holder is None else self.published(holder)
-            if entry is None:
-                return self.legacy.cycle(None)
-            if not entry.get("read"):
-                return None  # the commander has opened the joint but not read its state yet
-            return LinkState(int(entry["flags"]), float(entry["position_deg"]), float(entry["velocity_rpm"]))
+        return self._watched(self._state_through)
+
+    def _state_through(self, holder: Holder | None) -> LinkState | None:
+        if holder is not None and not holder.socket:
+            return None
+        entry = None if holder is None else self.published(holder)
+        if entry is None:
+            return self.legacy.cycle(None)
+        if not entry.get("read"):
+            return None  # the commander has opened the joint but not read its state yet
+        return LinkState(int(entry["flags"]), float(entry["position_deg"]), float(entry["velocity_rpm"]))
