@@ -10,9 +10,11 @@ joint image.
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
 import pytest
+import serial
 
 from .paths import missing
 
@@ -32,3 +34,13 @@ def joint_image(tmp_path_factory: pytest.TempPathFactory) -> Path:
 _cp_problem = missing("circuitpython")
 requires_circuitpython = pytest.mark.skipif(_cp_problem is not None,
                                             reason=f"emulated CircuitPython Pico: {_cp_problem}")
+
+
+def read_console_until(port: str, marker: bytes, timeout: float) -> bytes:
+    """What the board's serial console prints until `marker` (or `timeout` s: the caller asserts)."""
+    with serial.Serial(port, timeout=0.2) as console:
+        got = b""
+        end = time.monotonic() + timeout
+        while marker not in got and time.monotonic() < end:
+            got += console.read(4096)
+    return got

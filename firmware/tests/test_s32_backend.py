@@ -22,6 +22,7 @@ from joint.s32.tle5012b import TLE5012B, crc8, crc_table
 from joint.s32.tmc5130 import TMC5130, TMCError
 from joint.sim.clock import VirtualClock
 from joint.sim.i2c_target import FakeI2CTarget
+from pico_fakes import raises
 from s32_fakes import Board
 
 MICROPYTHON = sys.implementation.name == "micropython"
@@ -61,14 +62,6 @@ def run(board, motor, ms):
     for _ in range(ms):
         board.tick_ms()
         motor.update()
-
-
-def raises(exc_type, fn, *args):
-    try:
-        fn(*args)
-    except exc_type as exc:
-        return exc
-    raise AssertionError("%s not raised" % exc_type.__name__)
 
 
 # ---- TMC5130 frames and units ----

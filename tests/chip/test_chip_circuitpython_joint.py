@@ -8,19 +8,17 @@ boots in about 4.5 s of emulated time)."""
 from __future__ import annotations
 
 import struct
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-import serial
 
 from chip import fsimage
 from chip.board import EmulatedPico
 from chip.i2c import ChipBus, JointBusClient, joint_bus_plugin
 from chip.joint_devices import JOINT_DEVICES_PLUGIN, USTEPS_PER_REV, JointDevices
 from chip_bus import wait_on_bus
-from chip.testing import joint_image, requires_chip, requires_circuitpython  # noqa: F401 (a fixture)
+from chip.testing import joint_image, read_console_until, requires_chip, requires_circuitpython  # noqa: F401 (a fixture)
 from joint.spec import protocol as P
 
 pytestmark = [requires_chip, requires_circuitpython]
@@ -28,15 +26,6 @@ pytestmark = [requires_chip, requires_circuitpython]
 ADDRESS = 0x11  # J1
 KEEP_ALIVE_US = 10_000  # the host's poll period while the joint moves (deadman 50 ms)
 USTEPS_PER_DEG = USTEPS_PER_REV / 360
-
-
-def _read_until(port: str, marker: bytes, timeout: float) -> bytes:
-    with serial.Serial(port, timeout=0.2) as console:
-        got = b""
-        end = time.monotonic() + timeout
-        while marker not in got and time.monotonic() < end:
-            got += console.read(4096)
-    return got
 
 
 def register_replies(bus: JointBusClient) -> dict[tuple[int, int], bytes]:
@@ -58,7 +47,7 @@ def register_replies(bus: JointBusClient) -> dict[tuple[int, int], bytes]:
 def micropython_replies(joint_image: Path) -> dict[tuple[int, int], bytes]:  # noqa: F811
     """The MicroPython J1's replies at rest after boot, on the same devices."""
     with EmulatedPico(joint_image, plugins=[JOINT_DEVICES_PLUGIN, joint_bus_plugin()]) as pico:
-        assert b"ready at 0x11" in _read_until(pico.port(), b"ready at 0x11", 120)
+        assert b"ready at 0x11" in read_console_until(pico.port(), b"ready at 0x11", 120)
         return register_replies(JointBusClient(pico))
 
 
@@ -68,7 +57,7 @@ def circuitpython_joint(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tu
     fsimage.circuitpython_joint_image("J1", image)
     with EmulatedPico(image, runtime="circuitpython", plugins=[JOINT_DEVICES_PLUGIN, joint_bus_plugin()]) as pico:
         # After boot: the heap left, then how often the loop collects (set by its first iterations).
-        console = _read_until(pico.port(), b"collecting every", 240).decode(errors="replace")
+        console = read_console_until(pico.port(), b"collecting every", 240).decode(errors="replace")
         assert "ready at 0x11" in console and "collecting every" in console, console + pico.stderr_text()
         print(console)
         yield pico, JointBusClient(pico), console

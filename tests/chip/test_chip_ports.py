@@ -6,14 +6,12 @@ from __future__ import annotations
 
 import subprocess
 import sys
-import time
 from pathlib import Path
 
-import serial
 
 from bioscara.commands.ports import probe
 from chip.board import EmulatedPico
-from chip.testing import joint_image, requires_chip  # noqa: F401 (a fixture)
+from chip.testing import joint_image, read_console_until, requires_chip  # noqa: F401 (a fixture)
 
 pytestmark = requires_chip
 
@@ -30,11 +28,8 @@ def test_a_stock_board_is_a_micropython_board_and_stays_usable() -> None:
 
 def test_a_running_joint_is_its_debug_port_and_keeps_running(joint_image: Path) -> None:  # noqa: F811
     with EmulatedPico(joint_image) as pico:
-        with serial.Serial(pico.port(), timeout=0.2) as console:
-            # No motor on this board: the joint boots into its motor fault, then serves its port.
-            seen, end = b"", time.monotonic() + 120
-            while b"booted: " not in seen and time.monotonic() < end:
-                seen += console.read(4096)
+        # No motor on this board: the joint boots into its motor fault, then serves its port.
+        seen = read_console_until(pico.port(), b"booted: ", 120)
         assert b"booted: " in seen, seen
         found = probe(pico.port())
         assert found["kind"] == "joint debug port", found

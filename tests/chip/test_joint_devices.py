@@ -15,11 +15,9 @@ pulses on the STEP pin, the TMC2209's register file and the rotor model.
 from __future__ import annotations
 
 import struct
-import time
 from pathlib import Path
 
 import pytest
-import serial
 
 from bioscara.firmware.spec import protocol as P
 from bioscara.firmware.pico import tmc2209 as tmc
@@ -27,7 +25,7 @@ from bioscara.firmware.pico import tmc2209_setup as tmc_setup
 from chip.board import EmulatedPico
 from chip.i2c import JointBusClient, joint_bus_plugin
 from chip.joint_devices import JOINT_DEVICES_PLUGIN, USTEPS_PER_REV, JointDevices
-from chip.testing import joint_image, requires_chip  # noqa: F401 (a fixture)
+from chip.testing import joint_image, read_console_until, requires_chip  # noqa: F401 (a fixture)
 
 pytestmark = requires_chip
 
@@ -98,21 +96,12 @@ def fast():
 """
 
 
-def _read_until(port: str, marker: bytes, timeout: float) -> bytes:
-    with serial.Serial(port, timeout=0.2) as console:
-        got = b""
-        end = time.monotonic() + timeout
-        while marker not in got and time.monotonic() < end:
-            got += console.read(4096)
-    return got
-
-
 @pytest.fixture(scope="module")
 def booted(joint_image: Path):
     """J1 booted from /main.py with its devices and the joint bus controller on I2C0:
     (pico, devices, boot console text, device state after the boot)."""
     with EmulatedPico(joint_image, plugins=[JOINT_DEVICES_PLUGIN, joint_bus_plugin()]) as pico:
-        console = _read_until(pico.port(), b"ready at 0x11", 120).decode(errors="replace")
+        console = read_console_until(pico.port(), b"ready at 0x11", 120).decode(errors="replace")
         devices = JointDevices(pico)
         yield pico, devices, console, devices.state()
 

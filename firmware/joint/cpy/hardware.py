@@ -105,14 +105,10 @@ def build_stepper(cls, motor_cfg, clock):
 
     from ..pico import tmc2209 as tmc
     from ..pico.as5600 import AS5600
-    from ..pico.motor_config import DEFAULTS, validate_motor_config
+    from ..pico.motor_config import resolved
     from ..pico.stepgen import SM_FREQ, StepGenerator
 
-    problems = validate_motor_config(motor_cfg)
-    if problems:
-        raise ValueError("; ".join(problems))
-    c = dict(DEFAULTS)
-    c.update(motor_cfg)
+    c = resolved(motor_cfg)
     char_ms = 1 + 10000 // c["uart_baud"]
     uart = busio.UART(gpio(c["uart_tx"]), gpio(c["uart_rx"]), baudrate=c["uart_baud"],
                       timeout=(2 + 3 * char_ms) / 1000, receiver_buffer_size=64)

@@ -143,18 +143,24 @@ _POWERDOWN_S = 0.524  # the TMC5130's reset TPOWERDOWN (20) at 10 MHz, kept for 
 _STEALTH_MAX = 2000.0  # usteps/s: the library's TPWMTHRS=5000 at 10 MHz
 
 
+def resolved(motor_cfg):
+    """`motor_cfg` with DEFAULTS filling the gaps; ValueError naming every problem."""
+    problems = validate_motor_config(motor_cfg)
+    if problems:
+        raise ValueError("; ".join(problems))
+    c = dict(DEFAULTS)
+    c.update(motor_cfg)
+    return c
+
+
 def build_stepper(cls, motor_cfg, clock):
     """PicoStepper.from_config: the real objects from a motor config dict (DEFAULTS fill the gaps)."""
     from . import i2c_registers
 
-    problems = validate_motor_config(motor_cfg)
-    if problems:
-        raise ValueError("; ".join(problems))
+    c = resolved(motor_cfg)
     import machine
     import rp2
 
-    c = dict(DEFAULTS)
-    c.update(motor_cfg)
     Pin = machine.Pin
     char_ms = 1 + 10000 // c["uart_baud"]
     uart = machine.UART(c["uart"], baudrate=c["uart_baud"], tx=Pin(c["uart_tx"]), rx=Pin(c["uart_rx"]),
