@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import replace
+from pathlib import Path
 
 import pytest
 
@@ -13,6 +15,8 @@ from bioscara.bus.sim import SimBus
 from bioscara.communicator import Communicator
 from bioscara.config import ArmConfig
 from bioscara.errors import CommError, NotEnabledError, NotHomedError, StalledError
+from bioscara.firmware.config import schema as firmware_config
+from bioscara.firmware.core.supervise import DETECTOR_NAMES
 from bioscara.firmware.spec import protocol as P
 from bioscara.firmware.sim import mechanics
 from bioscara.gripper import MockGripper
@@ -117,6 +121,26 @@ def test_the_deadman_stops_a_joint_when_the_host_stops_writing(arm: Arm, comm: C
     assert joint.stepper.driver_rpm() == 0.0, "the firmware stopped the motor on its own"
     bus.sleep(0.5)
     assert abs(joint.stepper.encoder_rpm()) < 1
+
+
+def test_the_simulated_joints_run_the_shipped_joint_configurations(config: ArmConfig) -> None:
+    """Every constant of firmware/joint/config/J1..J4.json (stall detector, quick stop, safe action,
+    homing limits), at the address the host's configuration gives the joint."""
+    config = replace(config, joints={**config.joints, "j1": replace(config.joints["j1"], address=0x21)})
+    bus = open_arm_bus(config)
+    assert isinstance(bus, SimBus)
+    for name, jc in config.joints.items():
+        shipped = json.loads((Path(firmware_config.__file__).parent / f"{name.upper()}.json").read_text())
+        joint = bus.joint(jc.address)
+        cfg = joint.cfg
+        assert cfg.joint == name.upper() and cfg.address == jc.address
+        for key in ("deadman_ms", "stop_deceleration", "safe_action"):
+            assert getattr(cfg, key) == shipped[key], (name, key)
+        for section in ("boot", "stall", "homing"):
+            for key, value in shipped[section].items():
+                assert getattr(getattr(cfg, section), key) == value, (name, section, key)
+        assert joint.core.detector == DETECTOR_NAMES.index(shipped["stall"]["detector"])
+    bus.close()
 
 
 @pytest.mark.parametrize("arm", ["legacy"], indirect=True)

@@ -275,15 +275,13 @@ class ArmJoint:
     """One joint on its shipped configs/Jn.json, on the arm's mechanics, polled like a host."""
 
     def __init__(self, joint, payload_kg=0.0, safe_action=None):
-        from joint.config import schema as config
         from joint.sim import mechanics
         from joint.sim.bus import SimJointBus
         from joint.sim.clock import VirtualClock
-        from joint.sim.joint import SimJoint
+        from joint.sim.joint import SimJoint, shipped_config
         from joint.sim.stepper import SimStepper
-        cfg = config.load("firmware/joint/config/%s.json" % joint)
+        cfg = shipped_config(joint)
         assert cfg.valid, cfg.errors
-        cfg.motor = {"backend": "sim"}
         if safe_action is not None:
             cfg.safe_action = safe_action
         self.clock = VirtualClock()
