@@ -56,7 +56,7 @@ from joint.spec import protocol as P  # noqa: E402
 from joint.sim import mechanics as M  # noqa: E402
 from joint.sim.bus import SimJointBus, default_costs  # noqa: E402
 from joint.sim.clock import VirtualClock  # noqa: E402
-from joint.sim.joint import SimJoint  # noqa: E402
+from joint.sim.joint import SimJoint, shipped_config  # noqa: E402
 from joint.sim.stepper import SimStepper  # noqa: E402
 
 import contact_bounds  # noqa: E402 -- bench/, beside this file
@@ -134,9 +134,8 @@ class Rig:
             self.stepper.weaken_magnet(reports=MAGNET_WEAK if encoder == "as5600" else MAGNET_OK)
         self.stepper.set_end_stops(low_deg, high_deg)
         # The shipped per-joint config (its stall and homing constants), on the simulated motor.
-        cfg = joint_config.load(str(ROOT / "firmware" / "joint" / "config" / f"{joint}.json"))
+        cfg = shipped_config(joint)
         assert cfg.valid, cfg.errors
-        cfg.motor = {"backend": "sim"}
         if detector != "original" and not self._config_detector(cfg, detector):
             raise LookupError(detector)
         self.lines: list[str] = []

@@ -120,19 +120,47 @@ def test_motion_after_holding_is_guarded_again():
     assert ("stop", False) in rig.motor.calls and rig.core.flags & NOTENABLED
 
 
-def test_a_move_hunting_around_its_target_is_holding_not_moving():
+def _unsettled_move(ramp_rpm, angle):
+    """A move to 360 motor degrees under the watchdog whose ramp the closed loop keeps from
+    settling (it turns at `ramp_rpm`), the encoder at `angle`."""
     rig = Rig()
     rig.command("SETUP", 20, 20, 0, 0)
     rig.command("WATCHDOG", 50)
-    rig.motor.reached = False  # the closed loop keeps the ramp from settling ...
-    rig.motor.ramp_rpm = 4.0
+    rig.motor.reached = False
+    rig.motor.ramp_rpm = ramp_rpm
     rig.command("MOVETOANGLE", 360.0)
-    rig.motor.angle = 352.0  # ... within a few degrees of the target
+    rig.motor.angle = angle
+    return rig
+
+
+def test_a_move_hunting_around_its_target_is_holding_not_moving():
+    rig = _unsettled_move(4.0, 352.0)  # within a few degrees of the target
     rig.run_ms(500)
     assert rig.core.positioning and not rig.core.flags & NOTENABLED
     rig.motor.angle = 300.0  # pushed away from it: that is motion again
     rig.run_ms(52)
     assert rig.core.flags & NOTENABLED
+
+
+def test_an_arrived_move_holds_whatever_speed_its_closed_loop_corrects_at():
+    rig = _unsettled_move(4.0, 355.0)
+    rig.run_ms(10)  # arrived: within the window, slow
+    for k in range(300):  # 3 s of a quiet host; corrections at the host's acceleration reach 120 rpm
+        rig.motor.ramp_rpm = 120.0 if k % 10 < 4 else 3.0
+        rig.motor.angle = 350.0 if k % 2 else 370.0
+        rig.run_ms(10)
+    assert rig.core.positioning and not rig.core.flags & NOTENABLED
+    assert not any("deadman" in line for line in rig.lines)
+    rig.motor.angle = 300.0  # pushed out of the window: driven back, that is travel
+    rig.run_ms(2)
+    assert rig.core.flags & NOTENABLED
+
+
+def test_a_move_crossing_its_target_window_at_speed_is_still_travelling():
+    rig = _unsettled_move(60.0, 350.0)  # within the window, not slowed down: it has not arrived
+    rig.motor.calls = []
+    rig.run_ms(52)
+    assert ("stop", False) in rig.motor.calls and rig.core.flags & NOTENABLED
 
 
 def test_a_fresh_joint_keeps_the_original_deadman_velocity_only():
@@ -275,15 +303,13 @@ class ArmJoint:
     """One joint on its shipped configs/Jn.json, on the arm's mechanics, polled like a host."""
 
     def __init__(self, joint, payload_kg=0.0, safe_action=None):
-        from joint.config import schema as config
         from joint.sim import mechanics
         from joint.sim.bus import SimJointBus
         from joint.sim.clock import VirtualClock
-        from joint.sim.joint import SimJoint
+        from joint.sim.joint import SimJoint, shipped_config
         from joint.sim.stepper import SimStepper
-        cfg = config.load("firmware/joint/config/%s.json" % joint)
+        cfg = shipped_config(joint)
         assert cfg.valid, cfg.errors
-        cfg.motor = {"backend": "sim"}
         if safe_action is not None:
             cfg.safe_action = safe_action
         self.clock = VirtualClock()

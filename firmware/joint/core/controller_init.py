@@ -40,7 +40,7 @@ IRQ = ("_reply_wire", "_reply_err", "transactions", "host_us", "stops")
 MAIN_LOOP = ("_cache_turn", "_logged_rejects", "_motion_allowed", "_stops_seen", "disabled", "ready",
              "closed_loop", "drive_current", "hold_current", "max_acceleration", "max_deceleration",
              "q_set", "stall", "stallguard", "target_known", "watchdog_ms")
-SUPERVISION = ("detector", "_coasting")
+SUPERVISION = ("detector", "_coasting", "_arrived")
 TASKS = ("_task_wake", "inverted", "zero_offset")
 MAIN_SHARED = ("flags", "halts", "positioning", "qd_set", "_task", "task_name", "_safe_pending",
                "_next_sample_ms", "_next_stall_ms", "_next_track_ms")
@@ -87,6 +87,7 @@ def init(core, hal, clock, cfg, log, critical):
     core.zero_offset = 0
     core._safe_pending = False
     core._coasting = False  # the ramp after commanded motion, until the motor first stands
+    core._arrived = False  # the move to q_set came to its target: holding (supervise.py)
     # The host's acceleration limits, restored after a deadman stop, and the deadman's
     # quick-stop deceleration: full steps/s^2 Q4, converted here, once.
     core.max_acceleration = core.max_deceleration = to_q(cfg.boot.max_acceleration, STEPS_Q)

@@ -21,8 +21,8 @@ from .irq import FTAB_REARMS
 from ..spec.protocol import FLAG_BUSY, FLAG_NOTENABLED, FLAG_NOTHOMED, FLAG_STALL
 
 
-HOLD_WINDOW = const(15 << 12)  # motor degrees Q12: within this of its target a move is holding ...
-HOLD_RPM = const(30 << 16)  # ... when its driver turns slower than this (rpm Q16)
+HOLD_WINDOW = const(15 << 12)  # motor degrees Q12: within this of its target a move has arrived ...
+HOLD_RPM = const(30 << 16)  # ... once its driver turns slower than this (rpm Q16)
 ORIGINAL = const(0)
 TRACKING = const(1)
 DETECTOR_NAMES = ("original", "tracking")
@@ -82,21 +82,24 @@ class Supervisor:
 
     def _motion_active(self):
         """What the deadman guards: in watchdog mode every motion the host commanded, and the ramp
-        after it until the motor first stands; at boot the velocity setpoint. A joint holding its
-        position corrects small errors (its driver ramp turns for a sample now and then): that is
-        not motion, so a quiet host never gets a joint disabled that holds still."""
+        after it until the motor first stands; at boot the velocity setpoint. A move to an angle
+        has arrived once it is within HOLD_WINDOW of its target turning slower than HOLD_RPM; from
+        then on it holds there, whatever speed its closed loop corrects at (a re-synchronisation
+        runs at the host's acceleration), until it leaves the window: a quiet host never gets a
+        joint disabled that holds its target, and one still travelling toward it is stopped."""
         if not self.watchdog_ms:
             return self.qd_set != 0
         if self.qd_set != 0 or (self._task is not None and self.task_name != "boot"):
             self._coasting = True
+            self._arrived = False
             return True
-        if (self.positioning or self._coasting) and self.target_known \
-                and abs(self.q_set - self._host_angle()) <= HOLD_WINDOW and abs(self.hal.driver_rpm()) < HOLD_RPM:
-            # A move to an angle that has come within HOLD_WINDOW of it, turning slower than
-            # HOLD_RPM, is holding there (a closed loop can hunt around the target for seconds
-            # before its ramp settles).
-            self._coasting = False
-            return False
+        if (self.positioning or self._coasting) and self.target_known:
+            if abs(self.q_set - self._host_angle()) > HOLD_WINDOW:
+                self._arrived = False  # not there yet, or pushed away: travelling
+            elif self._arrived or abs(self.hal.driver_rpm()) < HOLD_RPM:
+                self._arrived = True
+                self._coasting = False
+                return False
         if self.positioning:
             self._coasting = True
             return True

@@ -1,6 +1,8 @@
 """A simulated joint: the real firmware core and I2C paths (legacy IRQ and v2 memory map)
 driving a simulated stepper."""
 
+import json
+
 from ..config import schema as joint_config
 from ..spec import protocol_v2 as V
 from ..core.controller import NO_CRITICAL, JointController
@@ -78,6 +80,23 @@ def _activity(target):
     def active():
         return target.active
     return active
+
+
+def shipped_config(joint, address=None, deadman_ms=None):
+    """The shipped configuration of `joint` (J1..J4: config/J1.json ...) as a simulated joint runs
+    it: every firmware constant of the file, on the simulated motor. The file's motor section and
+    I2C pins are the board's (a Pico's backend and wiring), so the motor becomes the simulator's
+    and the pins go unused; `address` and `deadman_ms`, when given, replace the file's (the host
+    places the joint) and are checked like the file's own values."""
+    path = __file__.rsplit("/", 2)[0] + "/config/" + joint + ".json"  # beside sim/, in the package
+    with open(path) as f:
+        data = json.load(f)
+    data["motor"] = {"backend": "sim"}
+    if address is not None:
+        data["address"] = address
+    if deadman_ms is not None:
+        data["deadman_ms"] = deadman_ms
+    return joint_config.parse(data, path)
 
 
 def make_joint(joint, clock, stepper, **kwargs):

@@ -12,11 +12,10 @@ import time
 from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
-from ..firmware.config import schema as firmware_config
 from ..firmware.sim.bus import SimJointBus
 from ..firmware.sim.clock import VirtualClock
 from ..firmware.sim import mechanics
-from ..firmware.sim.joint import SimJoint
+from ..firmware.sim.joint import SimJoint, shipped_config
 from ..firmware.sim.stepper import SimStepper
 from ..transmission import Transmission
 from .base import Bus
@@ -40,7 +39,7 @@ class SimJointSpec:
     min: float
     max: float
     start: float
-    deadman_ms: int = 50  # the joint firmware's own setting (its per-joint config)
+    deadman_ms: int | None = None  # the joint firmware's own setting; None: its shipped config's
     payload_kg: float = 0.0
     noise: str = "nominal"
 
@@ -55,14 +54,14 @@ class SimJointSpec:
 
 def build_joint(spec: SimJointSpec, clock: VirtualClock, seed: int, port: str,
                 write: Callable[[str], None]) -> SimJoint:
-    """The simulated joint of `spec`: its firmware on a stepper walled in at the joint limits,
-    logging its console lines through `write`."""
+    """The simulated joint of `spec`: its firmware, with the shipped configuration of its joint
+    (firmware/joint/config/J1..J4.json) at the spec's address, on a stepper walled in at the joint
+    limits, logging its console lines through `write`."""
     stepper = SimStepper(clock, seed=seed, **mechanics.stepper_kwargs(spec.firmware_joint, spec.payload_kg,
                                                                        spec.noise))
     low, high = sorted((spec.motor_degrees(spec.min), spec.motor_degrees(spec.max)))
     stepper.set_end_stops(low, high)
-    cfg = firmware_config.parse({"joint": spec.firmware_joint, "address": spec.address,
-                                 "deadman_ms": spec.deadman_ms}, f"simulated {spec.firmware_joint}")
+    cfg = shipped_config(spec.firmware_joint, spec.address, spec.deadman_ms)
     return SimJoint(cfg, clock, stepper, port=port, write=write)
 
 
