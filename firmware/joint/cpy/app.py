@@ -36,14 +36,15 @@ def build_motor(cfg):
 
 
 def boot(config_path=CONFIG_FILE):
-    """app.boot on CircuitPython: the controller built and its boot task run to its end."""
+    """startup.boot on CircuitPython: the controller built and its boot task run to its end."""
     import time
+    from .. import startup  # boot only: forgotten by drop_boot_only
 
-    core, cfg, log = mp_app.build(None, config_path, motor_builder=build_motor)
+    core, cfg, log = startup.build(None, config_path, motor_builder=build_motor)
     while not core.ready:
         core.service()
         time.sleep(0.001)
-    mp_app._drop_boot_only()
+    startup.drop_boot_only()
     return core, cfg, log
 
 
