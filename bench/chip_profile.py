@@ -134,11 +134,11 @@ for m in {modules!r}:
     free = gc.mem_free()
     print("%-24s %6d bytes" % (m, last - free))
     last = free
-from joint import app
+from joint import app, startup
 import machine
-core, cfg, log = app.boot(machine)
+core, cfg, log = startup.boot(machine)
 gc.collect(); free = gc.mem_free()
-print("%-24s %6d bytes" % ("app.boot()", last - free)); last = free
+print("%-24s %6d bytes" % ("startup.boot()", last - free)); last = free
 switch = app.join_bus(machine, core, cfg, log)
 from joint.console.debug import DebugConsole, UsbStdio
 stdio = UsbStdio()
@@ -157,19 +157,19 @@ MODULES = ["joint.micro", "joint.motion.fixed", "joint.spec.protocol_v2", "joint
            "joint.core.loop", "joint.spec.version", "joint.spec.regtable", "joint.core.controller", "joint.config.settings", "joint.config.schema", "joint.core.clock", "joint.console.log",
            "joint.motion.hal", "joint.motion.tickramp", "joint.motion.velocity", "joint.pico.tmc2209", "joint.pico.as5600",
            "joint.pico.stepgen", "joint.pico.motor", "joint.links.i2c_target",
-           "joint.links.memmap_v2", "joint.console.debug", "joint.app"]
+           "joint.links.memmap_v2", "joint.console.debug", "joint.app", "joint.startup"]
 
 
 # The main loop's parts timed one after another, on a joint turning at 30 rpm, no host traffic
 # (no IRQ in the figures): mean microseconds per iteration of each part.
 PARTS = '''
 import gc, time, machine
-from joint import app
+from joint import app, startup
 from joint.core import irq
 from joint.spec import protocol as P
 from joint.console.debug import DebugConsole, UsbStdio
 from joint.motion.fixed import store_q
-core, cfg, log = app.boot(machine)
+core, cfg, log = startup.boot(machine)
 switch = app.join_bus(machine, core, cfg, log)
 stdio = UsbStdio()
 console = DebugConsole(core, stdio.read, stdio.write)

@@ -13,7 +13,7 @@ import pytest
 from bioscara.transports import open_bus
 from bioscara.cli import main
 from bioscara.config import read_config
-from bioscara.serial_console import CSV_HEADER, JointConsole, plot
+from bioscara.serial_console import CSV_HEADER, JointConsole, in_words, plot
 from bioscara.firmware.spec import protocol as P
 from bioscara.hardware import sim_joint_specs
 from bioscara.joint import Joint
@@ -73,7 +73,21 @@ def test_status_and_log_lines(console: tuple[JointConsole, Lines], j1: Joint) ->
     lines.wait_for(lambda line: line.startswith("J1 at 0x11") and "flags" in line)
     lines.wait_for(lambda line: line.startswith("stall  spike limit"))
     j1.bus.transfer(0x11, bytes([P.SETRPM]) + struct.pack("<f", float("nan")), 1)  # rejected: logged
-    lines.wait_for(lambda line: line.startswith("J1 WARN rejected a frame for register 0x11"))
+    lines.wait_for(lambda line: line == "J1 WARN rejected a frame for register 0x11: value out of range or not "
+                   "finite (reason %d)" % P.REJECT_VALUE)
+
+
+def test_codes_the_joint_logs_by_number_are_said_in_words() -> None:
+    """The board logs reject reasons and homing outcomes as numbers (it keeps no texts for its
+    heap); the console a person reads says the words, as the joint's own log once did."""
+    assert in_words("J1 WARN homing ended, not homed: outcome 7") == (
+        "J1 WARN homing ended, not homed: encoder reports no magnet (or does not answer): homing refused (outcome 7)")
+    assert in_words("J2 WARN rejected a frame for register 0x40: reason 1") == (
+        "J2 WARN rejected a frame for register 0x40: unknown register (reason 1)")
+    assert in_words("J1 WARN homing ended, not homed: outcome 99") == (
+        "J1 WARN homing ended, not homed: unknown homing outcome 99 (outcome 99)")
+    for line in ("J1 WARN homing ended, not homed: aborted by STOP", "J1 INFO homed", "0x31 LASTERROR reason 4"):
+        assert in_words(line) == line
 
 
 def test_the_trace_is_captured_to_csv_and_plotted(console: tuple[JointConsole, Lines], j1: Joint,

@@ -1,15 +1,12 @@
-"""Boot the joint firmware on the MCU: configuration, motor backend, I2C target, main loop.
+"""Run the joint firmware on the MCU: boot (startup.py, forgotten once done), join the bus as an
+I2C target, the main loop.
 
 `machine` is passed in (the real module on the board, a stand-in in tests), so nothing here touches
-hardware at import time. An invalid configuration or a motor backend that fails to start leaves
-the joint disabled, reporting why on the serial console, instead of crashing.
+hardware at import time.
 """
 
 from . import micro
-from .core.clock import MonotonicClock
-from .core.controller import JointController
 from .links.i2c_target import I2CTargetAdapter
-from .console.log import Logger
 from .spec.protocol_v2 import MEM_ADDRSIZE
 from .config.settings import CONFIG_FILE
 from .links.memmap_v2 import ProtocolSwitch
@@ -19,59 +16,6 @@ _SLOW_EVERY_MASK = 3  # the console and the legacy protocol switch: every 4th ma
 
 def board_module(path):
     return micro.board_module(__name__[:-len(".app")], path)
-
-
-def build_motor(cfg):
-    backend = cfg.motor.get("backend")
-    if backend == "pico":
-        return board_module("pico.motor").PicoStepper.from_config(cfg.motor)
-    if backend == "s32":
-        return board_module("s32.board").build_stepper(cfg.motor)
-    raise ValueError("motor backend %r cannot run on a board" % cfg.motor.get("backend"))
-
-
-def build(machine, config_path=CONFIG_FILE, clock=None, write=None, cfg=None, motor_builder=build_motor):
-    """Load the configuration (unless `cfg` is given: a board without a filesystem) and create
-    the controller; returns (core, cfg, log). `machine` None: no interrupt shares the core's state
-    (CircuitPython polls its I2C target)."""
-    if cfg is None:
-        from .config import schema as config  # boot only (see _drop_boot_only)
-        cfg = config.load(config_path)
-    log = Logger(cfg.joint or "joint", write=write)
-    motor = None
-    if cfg.valid:
-        try:
-            motor = motor_builder(cfg)
-        except Exception as exc:
-            cfg.errors.append("motor backend failed to start: %r" % (exc,))
-    critical = None if machine is None else (machine.disable_irq, machine.enable_irq)
-    core = JointController(motor, clock or MonotonicClock(), cfg, log, critical=critical)
-    _drop_boot_only()
-    return core, cfg, log
-
-
-# Modules used only while building (package attribute paths under `joint`): the configuration's
-# schema and checks, the Pico backend's defaults and validation, the register spec's objects, the
-# builders of the controller and its IRQ tables (about 28 KB of heap together). The running joint
-# keeps what it needs of them in settings.py's objects, regtable.RegisterTable and its own state.
-BOOT_ONLY = ("config.schema", "core.controller_init", "core.irq_init", "pico.motor_config",
-             "pico.tmc2209_setup", "spec.protocol", "spec.protocol_v2")
-
-
-def _drop_boot_only():
-    """On the board, forget the boot-only modules: out of sys.modules and their packages, their
-    code and tables are collected. Importing one again simply reloads it."""
-    import sys
-    if sys.implementation.name == "cpython":
-        return
-    package = __name__[:-len("app")]  # "joint."
-    for path in BOOT_ONLY:
-        name = package + path
-        if sys.modules.pop(name, None) is None:
-            continue
-        parent, leaf = name[:name.rindex(".")], name[name.rindex(".") + 1:]
-        if hasattr(sys.modules.get(parent), leaf):
-            delattr(sys.modules[parent], leaf)
 
 
 def _on_rp2040(machine):
@@ -131,18 +75,6 @@ def join_bus(machine, core, cfg, log, target_pins=True):
         return None
 
 
-def boot(machine, config_path=CONFIG_FILE, cfg=None):
-    """`build`, then the boot task run to its end (the original's setup()); returns (core, cfg, log)."""
-    import time
-
-    core, cfg, log = build(machine, config_path, cfg=cfg)
-    while not core.ready:
-        core.service()
-        time.sleep_ms(1)
-    _drop_boot_only()  # again: the boot task's PicoStepper.begin loads pico.motor_config
-    return core, cfg, log
-
-
 def run(config_path=CONFIG_FILE, cfg=None, target_pins=True, console=True):
     """The joint's life: boot, join the bus, the 1 kHz main loop. A board without a filesystem
     passes its configuration as `cfg` and, with fixed bus pins, target_pins=False; one without
@@ -150,7 +82,9 @@ def run(config_path=CONFIG_FILE, cfg=None, target_pins=True, console=True):
     import machine
     import time
 
-    core, cfg, log = boot(machine, config_path, cfg)
+    from . import startup  # boot only: forgotten at the end of its boot()
+    core, cfg, log = startup.boot(machine, config_path, cfg)
+    del startup
     switch = join_bus(machine, core, cfg, log, target_pins)
     debug = None
     if console:

@@ -1,6 +1,6 @@
 """Boot on the board (app.py) with a stand-in `machine`: bad configurations never crash the firmware."""
 
-from joint import app
+from joint import app, startup
 from joint.spec import protocol as P
 from joint.sim.clock import VirtualClock
 from joint.sim.i2c_target import FakeI2CTarget
@@ -36,7 +36,7 @@ def _boot(text, machine):
     with open(PATH, "w") as f:
         f.write(text)
     lines = []
-    core, cfg, log = app.build(machine, PATH, VirtualClock(), lines.append)
+    core, cfg, log = startup.build(machine, PATH, VirtualClock(), lines.append)
     return core, cfg, log, lines
 
 
@@ -89,7 +89,7 @@ def test_every_unreadable_config_file_boots_a_disabled_joint_that_says_why():
         with open(PATH, "wb") as f:
             f.write(raw)
         lines = []
-        core, cfg, log = app.build(Machine(), PATH, VirtualClock(), lines.append)
+        core, cfg, log = startup.build(Machine(), PATH, VirtualClock(), lines.append)
         assert core.disabled and not cfg.valid, why
         assert any(why in line for line in lines), (why, lines)
         assert any("joint disabled" in line for line in lines), lines

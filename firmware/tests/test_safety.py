@@ -1,6 +1,7 @@
 """Deadman per mode whatever the flags say, refused frames, homing limits, the tracking detector."""
 
 from joint.spec import protocol as P
+from joint.detect.homing import TRAVEL_LIMIT
 from joint.detect.tracking import TrackingDetector
 from joint.motion.hal import MAGNET_MISSING, MAGNET_OK, MAGNET_STRONG, MAGNET_WEAK
 from harness import Rig
@@ -209,7 +210,9 @@ def test_a_homing_that_never_finds_its_stop_ends_not_homed():
         rig.run_ms(5)
     assert not rig.core.flags & BUSY and rig.core.flags & NOTHOMED
     assert ("set_home",) not in rig.motor.calls
-    assert any("travel limit" in line for line in rig.lines)
+    # The log names the outcome by its number (HOMINGRESULT's), which the host's console says in words.
+    assert any(line.endswith("homing ended, not homed: outcome %d" % TRAVEL_LIMIT) for line in rig.lines), rig.lines
+    assert "travel limit" in P.HOMING_OUTCOMES[TRAVEL_LIMIT]
 
 
 def test_tracking_detector_follows_free_motion_and_catches_a_blocked_rotor():
@@ -444,7 +447,7 @@ def test_a_homing_with_a_noisy_encoder_at_rest_is_refused():
 
 def test_a_homing_with_a_magnet_the_encoder_reports_unfit_is_refused_before_it_moves():
     """The encoder's own status (the AS5600's MD/ML/MH): missing, too weak, too strong each end the
-    HOME at once, NOTHOMED, with a console line and HOMINGRESULT naming the magnet."""
+    HOME at once, NOTHOMED, with a console line giving HOMINGRESULT's outcome, which names the magnet."""
     for health, word in ((MAGNET_MISSING, "no magnet"), (MAGNET_WEAK, "too weak"),
                          (MAGNET_STRONG, "too strong")):
         rig = Rig()
@@ -455,7 +458,7 @@ def test_a_homing_with_a_magnet_the_encoder_reports_unfit_is_refused_before_it_m
         assert not rig.core.flags & BUSY and rig.core.flags & NOTHOMED
         assert word in P.HOMING_OUTCOMES[_outcome(rig)] and "magnet" in P.HOMING_OUTCOMES[_outcome(rig)]
         assert "set_rpm" not in rig.motor.names() and "set_home" not in rig.motor.names()
-        assert any(word in line for line in rig.lines), rig.lines
+        assert any(line.endswith("homing ended, not homed: outcome %d" % _outcome(rig)) for line in rig.lines), rig.lines
         rig.motor.magnet_health = MAGNET_OK  # the magnet fixed: the next HOME is not refused by the old word
         rig.command("HOME", 1, 10, 30, 15)
         rig.run_ms(600)

@@ -31,6 +31,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
+from typing import ClassVar
 
 from . import firmware_flash as flash
 from .firmware import config as firmware_config
@@ -90,9 +91,10 @@ def _compiler() -> tuple[Callable[[bytes, str], bytes] | None, str]:
 
 
 @dataclass(frozen=True)
-class DrivePlan:
+class DrivePlan(flash.FileChanges):
     """What copying `image` onto the CIRCUITPY drive at `drive` changes."""
 
+    ENTRY: ClassVar[str] = CODE_PATH
     drive: Path
     boot_out: str  # the first line of the drive's boot_out.txt: which CircuitPython wrote it
     image: flash.Image
@@ -100,15 +102,6 @@ class DrivePlan:
     updated: tuple[str, ...]
     unchanged: tuple[str, ...]
     stale: tuple[str, ...]
-
-    @property
-    def changed(self) -> bool:
-        return bool(self.added or self.updated or self.stale)
-
-    @property
-    def write_bytes(self) -> int:
-        paths = set(self.added) | set(self.updated) | ({CODE_PATH} if self.changed else set())
-        return sum(len(self.image.files[p]) for p in paths)
 
 
 def _local(drive: Path, board_path: str) -> Path:

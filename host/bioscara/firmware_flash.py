@@ -23,7 +23,7 @@ from dataclasses import asdict, dataclass
 from functools import cache, partial
 from importlib import resources
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, ClassVar
 
 from .bus import Bus
 from .errors import BioscaraError, ConfigError
@@ -62,6 +62,30 @@ class Image:
 
     def sha256(self, path: str) -> str:
         return hashlib.sha256(self.files[path]).hexdigest()
+
+
+class FileChanges:
+    """A plan's file part, what writing `image` over a board's files changes: the image's files
+    `added`, `updated` and `unchanged` there, and the board's `stale` ones (removed). The board's
+    entry point ENTRY goes last and is written again whenever anything changes (Plan, and
+    circuitpy.DrivePlan for a CIRCUITPY drive)."""
+
+    ENTRY: ClassVar[str]
+    image: Image
+    added: tuple[str, ...]
+    updated: tuple[str, ...]
+    unchanged: tuple[str, ...]
+    stale: tuple[str, ...]
+
+    @property
+    def changed(self) -> bool:
+        return bool(self.added or self.updated or self.stale)
+
+    @property
+    def write_bytes(self) -> int:
+        """Bytes to copy (the entry point counts whenever anything changes)."""
+        paths = set(self.added) | set(self.updated) | ({self.ENTRY} if self.changed else set())
+        return sum(len(self.image.files[p]) for p in paths)
 
 
 def board_files(board: str = DEFAULT_BOARD) -> tuple[str, ...]:
@@ -225,9 +249,10 @@ def check_board(board: BoardInfo, port: str) -> None:
 
 
 @dataclass(frozen=True)
-class Plan:
+class Plan(FileChanges):
     """What flashing `image` onto the board at `port` changes."""
 
+    ENTRY: ClassVar[str] = MAIN_PATH
     port: str
     board: BoardInfo
     image: Image
@@ -237,16 +262,6 @@ class Plan:
     stale: tuple[str, ...]  # files in /joint that are not part of the firmware: removed
     warnings: tuple[str, ...] = ()
     assumed: bool = False  # no board was asked: `board` is STOCK_PICO, every file would be added
-
-    @property
-    def changed(self) -> bool:
-        return bool(self.added or self.updated or self.stale)
-
-    @property
-    def write_bytes(self) -> int:
-        """Bytes to copy (main.py counts whenever anything changes: see `apply`)."""
-        paths = set(self.added) | set(self.updated) | ({MAIN_PATH} if self.changed else set())
-        return sum(len(self.image.files[p]) for p in paths)
 
 
 def plan(board: Board, joint: str, config: tuple[bytes, firmware_config.JointConfig] | None = None,

@@ -3,7 +3,8 @@
 `JointConsole` owns the port (a joint's USB serial, or a simulated joint's pseudo-terminal from
 `bioscara sim`). A reader thread splits what the joint prints into lines: a trace sample (the
 tab-separated numbers of `firmware.console.debug_commands.TRACE_COLUMNS`) goes to `samples` and to the CSV capture
-if one runs; every other line goes to `on_line`. When the port vanishes (the board reset or was
+if one runs; every other line goes to `on_line`, a reject reason or homing outcome the joint logs by
+number in words (`in_words`). When the port vanishes (the board reset or was
 unplugged), the reader says so, waits for it to come back, reopens it and turns the trace back on
 if it was on. The terminal side (prompt, live plot) is in `bioscara.commands.console`.
 """
@@ -11,6 +12,7 @@ if it was on. The terminal side (prompt, live plot) is in `bioscara.commands.con
 from __future__ import annotations
 
 import csv
+import re
 import threading
 import time
 from collections import deque
@@ -23,6 +25,7 @@ from rich.text import Text
 
 from . import trace_plot
 from .errors import CommError
+from .firmware.spec import protocol as P
 from .firmware.console.debug_commands import TRACE_COLUMNS, TRACE_UNITS
 from .serial_port import DEFAULT_BAUD, PORT_ERRORS, open_port
 
@@ -37,6 +40,22 @@ _LONGEST_LINE = 4096
 class TraceSample:
     time: float  # s since the console opened, host clock at reception
     values: tuple[float, ...]  # in TRACE_COLUMNS order, units TRACE_UNITS
+
+
+# The log lines in which a joint names a reject reason or a homing outcome by number (the board
+# keeps no texts for them, for its heap): `in_words` puts the protocol's words in.
+_CODED = re.compile(r"(rejected a frame for register 0x[0-9a-f]{2}: |homing ended, not homed: )(reason|outcome) (\d+)$")
+
+
+def in_words(line: str) -> str:
+    """A joint's log line with the reject reason or homing outcome it gives by number in words,
+    the number after them: "...: reason 4" -> "...: value out of range or not finite (reason 4)"."""
+    match = _CODED.search(line)
+    if match is None:
+        return line
+    kind, code = match[2], int(match[3])
+    words = P.reject_string(code) if kind == "reason" else P.homing_outcome_string(code)
+    return f"{line[:match.start(2)]}{words} ({kind} {code})"
 
 
 def parse_trace(line: str) -> tuple[float, ...] | None:
@@ -190,7 +209,7 @@ class JointConsole:
         self.lines_received += 1
         values = parse_trace(line)
         if values is None:
-            self._on_line(line)
+            self._on_line(in_words(line))
             return
         sample = TraceSample(time.monotonic() - self._t0, values)
         with self._lock:

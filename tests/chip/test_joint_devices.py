@@ -5,7 +5,7 @@ The board starts from the littlefs image of exactly the files `bioscara flash --
 that boot (driver set-up, orientation check on the rotor) is the first test, then current commands
 over the joint bus (chip-i2c's emulated controller on I2C0) reach the driver. The later tests reach
 the joint through the raw REPL (mpremote): Ctrl-C ends main.py's loop (which leaves the motor
-safe), and a script on the board builds a fresh `JointController` with `app.build(machine)` and
+safe), and a script on the board builds a fresh `JointController` with `startup.build(machine)` and
 runs its main loop, handing it frames with `on_frame` and `host_seen` as the I2C target adapter
 would: the command path there is the REPL, not I2C0 (5-byte commands over I2C0 do not arrive
 whole yet: tests/chip/test_joint_bus.py). Every figure is taken on the emulated clock:
@@ -34,7 +34,7 @@ USTEPS_PER_DEG = USTEPS_PER_REV / 360
 # On the board, after main.py was interrupted: a fresh controller and its main loop in emulated time.
 BOARD_HELPERS = """
 import gc, json, machine, rp2, struct, time
-from joint import app
+from joint import startup
 from joint.config import schema as config
 from joint.spec import protocol as P
 
@@ -53,7 +53,7 @@ def make():
     core = cfg = log = None  # the previous test's controller frees its heap before the next is built
     gc.collect()
     rp2.PIO(0).remove_program()
-    core, cfg, log = app.build(machine, "/chip_test_config.json")
+    core, cfg, log = startup.build(machine, "/chip_test_config.json")
 
 stats = [0, 0, 0]  # iterations, longest us, iterations over 4 ms (the ramp's dt clamp)
 

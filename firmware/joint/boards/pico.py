@@ -4,7 +4,7 @@ with an AS5600 encoder (the pico backend)."""
 
 MAIN = "board_main.py"
 FILES = (
-    "__init__.py", "app.py", "micro.py",
+    "__init__.py", "app.py", "micro.py", "startup.py",
     "spec/", "core/", "motion/", "detect/", "console/", "config/", "pico/",
     "links/__init__.py", "links/i2c_target.py", "links/memmap_v2.py",
 )

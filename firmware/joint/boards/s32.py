@@ -7,7 +7,7 @@ dfu-util instead of copying files."""
 
 MAIN = "s32/main.py"
 FILES = (
-    "__init__.py", "app.py", "micro.py",
+    "__init__.py", "app.py", "micro.py", "startup.py",
     "spec/", "core/", "config/", "s32/",
     "motion/__init__.py", "motion/fixed.py", "motion/hal.py", "motion/velocity.py",
     "detect/__init__.py", "detect/homing.py", "detect/stall.py", "detect/tracking.py",

@@ -1,7 +1,7 @@
 """The joint's validated configuration as the running firmware keeps it.
 
 config.py reads and validates the file at boot and builds these objects; the board then forgets
-config.py (its schema, defaults and checks: about 9 KB of heap, app._drop_boot_only). Only these
+config.py (its schema, defaults and checks: about 9 KB of heap, startup.drop_boot_only). Only these
 small classes stay, since the controller and the console keep the configuration.
 """
 

@@ -37,7 +37,7 @@ class JointController(IrqPath, MainLoop, Handlers, Tasks, Supervisor):
     """The firmware of one joint, independent of the I2C peripheral and the motor backend."""
 
     def __init__(self, hal, clock, cfg, log, critical=None):
-        from .controller_init import init  # boot only (app.BOOT_ONLY)
+        from .controller_init import init  # boot only (startup.BOOT_ONLY)
         init(self, hal, clock, cfg, log, critical)
 
     def set_critical(self, critical):

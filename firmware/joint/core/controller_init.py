@@ -1,4 +1,4 @@
-"""JointController's construction, boot only (app.BOOT_ONLY): the board forgets this code once the
+"""JointController's construction, boot only (startup.BOOT_ONLY): the board forgets this code once the
 joint is built; the controller keeps only the state it made.
 
 Who owns which state. Every attribute below is created here (`init`, `irq_init.init`); after boot

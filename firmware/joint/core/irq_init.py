@@ -1,4 +1,4 @@
-"""The IRQ path's tables, built from the protocol spec at boot only (app.BOOT_ONLY): the board
+"""The IRQ path's tables, built from the protocol spec at boot only (startup.BOOT_ONLY): the board
 forgets this code once the joint is built; irq.py's viper code keeps reading what it made.
 
 The frame table (`core._ftab`, one bytearray so viper code reaches it through one pointer): by

@@ -112,8 +112,8 @@ class MainLoop:
         if self._ftab[_FTAB_REJECTS] != self._logged_rejects:  # (one byte: wraps at 256, not between two passes)
             self._logged_rejects = self._ftab[_FTAB_REJECTS]
             cache = self._cache[_LASTERROR]
-            self.log.warn("rejected a frame for register 0x%02x: %s"
-                          % (cache[1], self.registers.reject_string(cache[0])))
+            # The reason by number: the board keeps no reason texts (heap); `bioscara console` says the words.
+            self.log.warn("rejected a frame for register 0x%02x: reason %d" % (cache[1], cache[0]))
 
     def _motor_fault(self, exc):
         """The motor backend failed (driver or encoder unreachable): disable the joint for good."""

@@ -10,7 +10,7 @@ import struct
 from ..motion.fixed import ANGLE_Q, RPM_Q, muldiv, store_q
 from ..detect.homing import HOMED, RUNNING
 from .irq import FTAB_TASK, FTAB_TASK_STOPS
-from ..spec.protocol import FLAG_BUSY, FLAG_NOTHOMED, FLAG_STALL, HOMING_OUTCOMES, HOMINGRESULT, HOMINGTRAVEL
+from ..spec.protocol import FLAG_BUSY, FLAG_NOTHOMED, FLAG_STALL, HOMINGRESULT, HOMINGTRAVEL
 from ..detect.tracking import wrapped_diff
 from ..micro import const
 
@@ -178,8 +178,11 @@ class Tasks:
             self.log.info("homed")
         else:
             self._set_flags(FLAG_NOTHOMED)
-            self.log.warn("homing ended, not homed: %s" % ("aborted by STOP" if outcome == RUNNING
-                                                          else HOMING_OUTCOMES[outcome]))
+            # By number: the board keeps no outcome texts (heap); `bioscara console` says the words.
+            if outcome == RUNNING:
+                self.log.warn("homing ended, not homed: aborted by STOP")
+            else:
+                self.log.warn("homing ended, not homed: outcome %d" % outcome)
         struct.pack_into("<B", self._cache[HOMINGRESULT], 0, outcome)
         hal.set_current(self.drive_current)
         hal.set_hold_current(self.hold_current)

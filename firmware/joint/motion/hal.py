@@ -33,7 +33,9 @@ MAGNET_STRONG = 3  # too close: the sensor saturates
 
 
 class MotorHAL:
-    """Interface of a joint motor backend. Subclasses implement every method."""
+    """Interface of a joint motor backend. Subclasses implement every method but the closed loop's
+    switch and threshold, whose setters here store `_closed_loop` and `_threshold` (usteps) for the
+    subclass's update() to read; the subclass sets both at construction (off, 10)."""
 
     def begin(self):
         """Power-on setup: closed-loop mode with 200 full steps, closed loop still inactive."""
@@ -44,15 +46,15 @@ class MotorHAL:
         raise NotImplementedError
 
     def enable_closed_loop(self):
-        raise NotImplementedError
+        self._closed_loop = True
 
     def disable_closed_loop(self):
         """Closed loop off; the PID error freezes at its last value."""
-        raise NotImplementedError
+        self._closed_loop = False
 
     def set_control_threshold(self, usteps):
         """Re-synchronise the driver to the encoder when |error| >= usteps."""
-        raise NotImplementedError
+        self._threshold = usteps
 
     def set_max_velocity(self, full_steps_per_s):
         raise NotImplementedError

@@ -168,17 +168,6 @@ class PicoStepper(MotorHAL):
         self._ramp.x += delta  # keeps the sub-ustep fraction
         self._es[_ES_NEXT] += delta  # the queued encoder read's driver position
 
-    # ---- closed loop ----
-
-    def enable_closed_loop(self):
-        self._closed_loop = True
-
-    def disable_closed_loop(self):
-        self._closed_loop = False
-
-    def set_control_threshold(self, usteps):
-        self._threshold = usteps
-
     # ---- motion ----
 
     # Like the library these apply to the running ramp at once, except during a stop, which

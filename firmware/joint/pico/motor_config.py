@@ -1,7 +1,7 @@
 """The Pico backend's motor configuration: defaults, pins and their validation, and PicoStepper's
 construction and begin() (boot only).
 
-A module of its own because nothing here runs after boot: `app.build` drops it from
+A module of its own because nothing here runs after boot: `startup.build` drops it from
 `sys.modules` once the joint is built, and its code and tables leave the heap.
 """
 

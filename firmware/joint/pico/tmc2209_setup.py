@@ -1,4 +1,4 @@
-"""TMC2209 configuration values computed once, at boot (app.BOOT_ONLY): the board forgets this
+"""TMC2209 configuration values computed once, at boot (startup.BOOT_ONLY): the board forgets this
 module once the driver is configured.
 
 Coil current (datasheet, motor current setting), with the internal reference (I_scale_analog=0):

@@ -33,7 +33,7 @@ def read_config(mem8, address=CONFIG_ADDRESS, size=CONFIG_SIZE):
 
 
 def load_config(mem8):
-    from ..config import schema  # boot only (app.BOOT_ONLY)
+    from ..config import schema  # boot only (startup.BOOT_ONLY)
     return schema.parse_bytes(read_config(mem8), CONFIG_SOURCE)
 
 

@@ -118,17 +118,6 @@ class S32Stepper(MotorHAL):
         if self._stopping and self._v == 0:
             self._finish_stop()
 
-    # ---- closed loop ----
-
-    def enable_closed_loop(self):
-        self._closed_loop = True
-
-    def disable_closed_loop(self):
-        self._closed_loop = False
-
-    def set_control_threshold(self, usteps):
-        self._threshold = usteps
-
     # ---- motion (the TMC5130's ramp generator) ----
 
     def set_max_velocity(self, full_steps_per_s):

@@ -495,13 +495,7 @@ class SimStepper(MotorHAL):
         self._field = field
         self._counts, self._pid_error = counts, pid
 
-    # ---- MotorHAL ----------------------------------------------------------------------------
-    def enable_closed_loop(self):
-        self._closed_loop = True
-
-    def disable_closed_loop(self):
-        self._closed_loop = False
-
+    # ---- MotorHAL (enable/disable_closed_loop are MotorHAL's own) -----------------------------
     def set_control_threshold(self, usteps):
         self._control_threshold = float(usteps)
 

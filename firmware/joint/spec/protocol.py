@@ -443,7 +443,7 @@ REGISTERS = (
              doc="extension: how the last HOME ended, an index of HOMING_OUTCOMES"),
 )
 
-# How a HOME ends (HOMINGRESULT; the joint's console says the same).
+# How a HOME ends (HOMINGRESULT; the joint logs the number, `bioscara console` these words).
 HOMING_OUTCOMES = (
     "running",
     "homed",
@@ -531,3 +531,9 @@ def reject_string(reason):
         if value == reason:
             return text
     return "unknown reject reason %d" % reason
+
+
+def homing_outcome_string(outcome):
+    if 0 <= outcome < len(HOMING_OUTCOMES):
+        return HOMING_OUTCOMES[outcome]
+    return "unknown homing outcome %d" % outcome

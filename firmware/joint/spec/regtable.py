@@ -1,10 +1,12 @@
 """What the running joint keeps of the register spec (protocol.py): names, flag effects that the
-main loop reads, mailbox payload sizes, reply formats and the texts of its log lines.
+main loop reads, mailbox payload sizes, reply formats and the names its log lines and console
+print. Reject reasons and homing outcomes it logs by number (their texts took about 1.5 KB of the
+board's heap); the host's console (serial_console.in_words) says them in words.
 
 protocol.py's Register and Field objects are the spec for the host and for the joint's boot; on
 the board they and their code take about 16 KB of heap. A `RegisterTable` copies the few facts
 the joint needs after boot out of the spec once, so that the board forgets protocol.py after boot
-(app._drop_boot_only). Nothing here may hold a protocol.py object, or the spec would stay.
+(startup.drop_boot_only). Nothing here may hold a protocol.py object, or the spec would stay.
 """
 
 import struct
@@ -37,10 +39,6 @@ class RegisterTable:
                 self._command_sizes[addr] = reg.wsize
         self._names = tuple(names)
         self._flags = P.FLAG_NAMES
-        reasons = [None] * (1 + max(value for value, _ in P.REJECT_REASONS))
-        for value, text in P.REJECT_REASONS:
-            reasons[value] = text
-        self._reasons = tuple(reasons)
 
     def command_size(self, cmd):
         """Payload bytes of register `cmd` (any byte) in a v2 mailbox; NOT_A_COMMAND if it may not
@@ -62,9 +60,3 @@ class RegisterTable:
         """The flags byte by name, as protocol.describe_flags."""
         names = [name for bit, name in self._flags if flags & bit]
         return "|".join(names) if names else "-"
-
-    def reject_string(self, reason):
-        """Why a frame was rejected, as protocol.reject_string."""
-        if 0 <= reason < len(self._reasons) and self._reasons[reason] is not None:
-            return self._reasons[reason]
-        return "unknown reject reason %d" % reason
