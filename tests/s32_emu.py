@@ -30,10 +30,26 @@ from s32_fakes import Board  # noqa: E402
 
 
 HEAP_LINE = re.compile(rb"booted: (\d+) bytes of heap free")
+BOOT_MS = 3000  # virtual time a boot may take (it takes about 940 ms)
+AFTER_BOOT_MS = 50  # of the main loop after the boot, for a fault in its first iterations
+
+
+# Qiling's DMA1 stream interrupts (stm32f401 env) and the transfer-complete flag of each stream
+# in LISR (streams 0-3) or HISR (4-7).
+_DMA_TCIF = (5, 11, 21, 27)
+_DMA_EN = 0x1
+_DMA_TCIE = 0x10
+_DMA_DIR_M2P = 0x40
+_SPI_CR2_TXDMAEN = 0x2
 
 
 def _spi_device(framer):
-    """A Qiling STM32F4 SPI peripheral whose data register talks to `framer(byte) -> reply`."""
+    """A Qiling STM32F4 SPI peripheral whose data register talks to `framer(byte) -> reply`.
+
+    Transfers longer than a byte go through DMA (MicroPython's spi_transfer): when the firmware
+    sets TXDMAEN, the DMA1 streams pointed at this data register move the whole transfer at once
+    and raise their transfer-complete interrupts, as the real streams do once the last byte
+    has shifted."""
     from qiling.hw.peripheral import QlPeripheral
     from qiling.hw.spi.stm32f4xx_spi import STM32F4xxSpi
 
@@ -43,13 +59,39 @@ def _spi_device(framer):
             if offset == self.struct.DR.offset:
                 self.instance.DR = framer(value & 0xFF)
                 return
+            starts_dma = offset == self.struct.CR2.offset and value & ~self.instance.CR2 & _SPI_CR2_TXDMAEN
             super().write(offset, size, value)
+            if starts_dma:
+                self._dma_transfer()
 
         @QlPeripheral.monitor()
         def read(self, offset: int, size: int) -> int:
             if offset == self.struct.DR.offset:
                 return self.instance.DR
             return super().read(offset, size)
+
+        def _dma_transfer(self):
+            dma = self.ql.hw.dma1
+            data_register = self.base + self.struct.DR.offset
+            streams = [(n, s) for n, s in enumerate(dma.instance.stream) if s.CR & _DMA_EN and s.PAR == data_register]
+            tx = [s for _, s in streams if s.CR & _DMA_DIR_M2P]
+            if not tx:
+                return
+            rx = [s for _, s in streams if not s.CR & _DMA_DIR_M2P]
+            out = bytes(self.ql.mem.read(tx[0].M0AR, tx[0].NDTR))
+            replies = bytes(framer(byte) for byte in out)
+            if rx:
+                self.ql.mem.write(rx[0].M0AR, replies[:rx[0].NDTR])
+            for number, stream in streams:
+                stream.NDTR = 0
+                stream.CR &= ~_DMA_EN
+                flag = 1 << _DMA_TCIF[number % 4]
+                if number < 4:
+                    dma.instance.LISR |= flag
+                else:
+                    dma.instance.HISR |= flag
+                if stream.CR & _DMA_TCIE:
+                    self.ql.hw.nvic.set_pending(dma.intn[number])
 
     return DeviceSpi
 
@@ -95,8 +137,31 @@ class TleFramer:
         return self.buf[n - 2]
 
 
+# Virtual time: one instruction is one cycle of the 84 MHz core (an estimate: the emulator has no
+# timing fidelity). The CPU runs in slices of SLICE instructions; between slices the peripherals
+# step, SysTick counts the slice down, pending interrupts are taken and the driver's ramp advances a
+# millisecond at a time. A WFI ends its slice early: the core sleeps out the rest of it.
+CORE_HZ = 84_000_000
+CYCLES_PER_MS = CORE_HZ // 1000
+SLICE = CYCLES_PER_MS // 8
+_SYSTICK_ENABLE = 0x1
+_SYSTICK_TICKINT = 0x2
+_SYSTICK_COUNTFLAG = 0x10000
+_UNMASK_STEPS = 64
+_IT_BITS = 0x0600FC00  # xPSR's IT/ICI field: the core is inside an IT block
+
+
 class EmulatedS32:
-    """A composed flash file (image + configuration) booted; `run(rounds)` advances it."""
+    """A composed flash file (image + configuration) booted on Qiling's STM32F401, run in virtual
+    time by a deterministic scheduler (`run_ms`).
+
+    Qiling's own MCU loop (`ql.run`, fast mode) is not used: it slices by wall-clock time, so no
+    two runs agree, and each `ql.run` call leaves its scheduler task registered with the program
+    counter it was stopped at; the next call runs a new task beside it, and the stale one resumes
+    the CPU at its old pc with the current registers (the fetch faults the first attempt met). Its
+    NVIC also drops an interrupt raised while PRIMASK is set (MicroPython's WFI loops do exactly
+    that) instead of keeping it pending, and its SysTick reloads a slice late.
+    """
 
     def __init__(self, flash: pathlib.Path) -> None:
         import qiling.hw
@@ -112,43 +177,139 @@ class EmulatedS32:
         ql = Qiling([str(flash), 0x08000000], archtype=QL_ARCH.CORTEX_M, ostype=QL_OS.MCU, env=stm32f401,
                     verbose=QL_VERBOSE.DISABLED)
         for name in ("rcc", "flash interface", "pwr", "usart2", "gpioa", "gpiob", "gpioc", "gpioh", "i2c1",
-                     "syscfg", "exti"):
+                     "syscfg", "exti", "dma1"):
             ql.hw.create(name)
+        ql.hw.stepable.pop("dma1")  # its streams move a byte per step; the SPI models do whole transfers
         for label, struct in (("spi2", "S32TmcSpi"), ("spi3", "S32TleSpi")):
             _, base, kwargs = ql.hw.load_env(label.upper())
             ql.hw.create(label, struct, base, kwargs)
-        ql.os.fast_mode = True
+        from unicorn import arm_const
+
+        # S0-S15 and FPSCR: what a Cortex-M4F stacks on exception entry (Qiling stacks none)
+        self._fp_stacked = [arm_const.UC_ARM_REG_S0 + i for i in range(16)] + [arm_const.UC_ARM_REG_FPSCR]
+        ql.hw.systick.step = self._systick_step
+        ql.hw.nvic.step = self._take_interrupts
         self.ql = ql
+        self.cycles = 0
         self.output = b""
 
-    def run(self, rounds: int) -> bytes:
-        """Advance by `rounds` of Qiling's fast-mode scheduler; returns the new UART output."""
-        self.ql.run(count=rounds)
+    def run_ms(self, ms: int) -> bytes:
+        """Advance `ms` milliseconds of virtual time; returns the new UART output."""
+        from unicorn import UcError
+
+        uc = self.ql.uc
+        for _ in range(ms):
+            for _ in range(CYCLES_PER_MS // SLICE):
+                self._leave_it_block()
+                self.ql.hw.step()
+                try:
+                    uc.emu_start(self.ql.arch.effective_pc, 0, 0, SLICE)
+                except UcError as exc:
+                    raise EmulationFault(self, exc) from exc
+                self.cycles += SLICE
+                self._reach_unmasked()
+            self.board.tick_ms()
         got = self.ql.hw.usart2.recv()
         self.output += got
         return got
 
-    def run_until(self, text: bytes, rounds: int = 200, step: int = 100000) -> bool:
-        for _ in range(rounds):
-            self.run(step)
+    def run_until(self, text: bytes, ms: int) -> bool:
+        """Run until the UART output holds `text`, for at most `ms` of virtual time."""
+        for _ in range(ms):
             if text in self.output:
                 return True
-        return False
+            self.run_ms(1)
+        return text in self.output
+
+    def _reach_unmasked(self) -> None:
+        """With an interrupt pending but masked (MicroPython sleeps in `cpsid i; wfi; msr PRIMASK`),
+        step on until the mask lifts, so the interrupt is taken where the hardware takes it rather
+        than a slice later, every slice."""
+        nvic = self.ql.hw.nvic
+        for _ in range(_UNMASK_STEPS):
+            if not nvic.intrs or any(self._unmasked(n) for n in nvic.intrs):
+                return
+            self.ql.uc.emu_start(self.ql.arch.effective_pc, 0, 0, 1)
+
+    def _leave_it_block(self) -> None:
+        """Single-step out of an IT block: an interrupt taken inside one would lose its state."""
+        regs = self.ql.arch.regs
+        while regs.read("xpsr") & _IT_BITS:
+            self.ql.uc.emu_start(self.ql.arch.effective_pc, 0, 0, 1)
+
+    def _systick_step(self) -> None:
+        """SysTick counts down a slice of core clocks, reloading from LOAD as the hardware does."""
+        tick = self.ql.hw.systick.instance
+        if not tick.CTRL & _SYSTICK_ENABLE:
+            return
+        value = tick.VAL - SLICE
+        if value < 0:
+            value %= tick.LOAD + 1
+            tick.CTRL |= _SYSTICK_COUNTFLAG
+            if tick.CTRL & _SYSTICK_TICKINT:
+                self.ql.hw.nvic.set_pending(IRQ_SYSTICK)
+        tick.VAL = value
+
+    def _take_interrupts(self) -> None:
+        """Take the pending interrupts the core's masks allow, highest priority first; the others
+        stay pending (Qiling's NVIC would drop them)."""
+        nvic = self.ql.hw.nvic
+        arch = self.ql.arch
+        while nvic.intrs:
+            pending = sorted(set(nvic.intrs), key=nvic.get_priority)
+            taken = next((n for n in pending if self._unmasked(n)), None)
+            if taken is None:
+                nvic.intrs = pending
+                return
+            nvic.intrs = [n for n in pending if n != taken]
+            nvic.clear_pending(taken)
+            fp = [self.ql.uc.reg_read(reg) for reg in self._fp_stacked]
+            arch.interrupt_handler(self.ql, taken)
+            if arch.regs.read("ipsr"):
+                raise EmulationFault(self, RuntimeError(f"interrupt {taken} did not return"))
+            for reg, value in zip(self._fp_stacked, fp):
+                self.ql.uc.reg_write(reg, value)
+
+    def _unmasked(self, irq: int) -> bool:
+        regs = self.ql.arch.regs
+        basepri = regs.read("basepri") & 0xF0
+        if basepri and basepri <= self.ql.hw.nvic.get_priority(irq):
+            return False
+        return not (irq > IRQ_HARD_FAULT and regs.read("primask") & 1)
+
+
+IRQ_SYSTICK = -1
+IRQ_HARD_FAULT = -13
+
+
+class EmulationFault(Exception):
+    """The emulated CPU stopped (unicorn's fault): where, with the symbols' addresses."""
+
+    def __init__(self, emu: EmulatedS32, cause: Exception) -> None:
+        regs = emu.ql.arch.regs
+        super().__init__(f"{cause} at pc 0x{regs.read('pc'):08x} (lr 0x{regs.read('lr'):08x}) "
+                         f"after {emu.cycles} cycles")
 
 
 def main(flash: str) -> int:
+    """Boot `flash`, run the main loop AFTER_BOOT_MS more; the log to stderr, the heap to stdout."""
     emu = EmulatedS32(pathlib.Path(flash))
     try:
-        booted = emu.run_until(b"heap free")
-    except Exception as exc:  # unicorn's fault (UcError), with the CPU's state: the emulation stopped
-        regs = emu.ql.arch.regs
+        booted = emu.run_until(b"heap free", BOOT_MS)
+        boot_ms = emu.cycles // CYCLES_PER_MS
+        frames = emu.board.tmc.frames
+        if booted:
+            emu.run_ms(AFTER_BOOT_MS)
+    except EmulationFault as exc:
         sys.stderr.write(emu.output.decode(errors="replace"))
-        sys.stderr.write(f"\nemulation stopped: {exc} at pc 0x{regs.read('pc'):08x} (lr 0x{regs.read('lr'):08x})\n")
-        return 1
-    if not booted:
-        sys.stderr.write("the emulated S32 did not report its heap; its output:\n" + emu.output.decode(errors="replace"))
+        sys.stderr.write(f"\nemulation stopped: {exc}\n")
         return 1
     sys.stderr.write(emu.output.decode(errors="replace"))
+    if not booted:
+        sys.stderr.write(f"the emulated S32 did not report its heap within {BOOT_MS} ms\n")
+        return 1
+    sys.stderr.write(f"booted in {boot_ms} ms of virtual time; then {emu.board.tmc.frames - frames} TMC5130 "
+                     f"datagrams in {AFTER_BOOT_MS} ms\n")
     free = int(HEAP_LINE.search(emu.output).group(1))
     print(f"s32.heap_free_after_boot_kb {free / 1024:.1f}")
     return 0
