@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import pathlib
 import re
+import subprocess
 import sys
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -31,6 +32,7 @@ from s32_fakes import Board  # noqa: E402
 
 HEAP_LINE = re.compile(rb"booted: (\d+) bytes of heap free")
 BOOT_MS = 3000  # virtual time a boot may take (it takes about 940 ms)
+ESTIMATE_MS = 20  # of the main loop counted instruction by instruction
 AFTER_BOOT_MS = 50  # of the main loop after the boot, for a fault in its first iterations
 
 
@@ -291,6 +293,31 @@ class EmulationFault(Exception):
                          f"after {emu.cycles} cycles")
 
 
+def main_loop_instructions(emu: EmulatedS32, elf: pathlib.Path, ms: int) -> tuple[int, int]:
+    """(instructions executed, main-loop iterations) over `ms` of virtual time, interrupts
+    included. An iteration is app.run's `time.ticks_add(next_us, 1000)`: a call of the C
+    function time_ticks_add with delta 1000 (the small int 1000 is 2001 in r1). Slow (a Python
+    hook on every instruction): for the estimate only."""
+    from unicorn import UC_HOOK_CODE
+    from unicorn.arm_const import UC_ARM_REG_R1
+
+    symbols = subprocess.run(["arm-none-eabi-nm", str(elf)], capture_output=True, text=True, check=True).stdout
+    ticks_add = next(int(line.split()[0], 16) for line in symbols.splitlines() if line.endswith(" time_ticks_add.lto_priv.0"))
+    counts = [0, 0]
+
+    def count(uc, address, size, _):
+        counts[0] += 1
+        if address == ticks_add and uc.reg_read(UC_ARM_REG_R1) == 2001:
+            counts[1] += 1
+
+    hook = emu.ql.uc.hook_add(UC_HOOK_CODE, count)
+    emu.ql.uc.ctl_flush_tb()  # blocks translated before the hook would run uncounted
+    emu.run_ms(ms)
+    emu.ql.uc.hook_del(hook)
+    emu.ql.uc.ctl_flush_tb()
+    return counts[0], counts[1]
+
+
 def main(flash: str) -> int:
     """Boot `flash`, run the main loop AFTER_BOOT_MS more; the log to stderr, the heap to stdout."""
     emu = EmulatedS32(pathlib.Path(flash))
@@ -312,6 +339,14 @@ def main(flash: str) -> int:
                      f"datagrams in {AFTER_BOOT_MS} ms\n")
     free = int(HEAP_LINE.search(emu.output).group(1))
     print(f"s32.heap_free_after_boot_kb {free / 1024:.1f}")
+    elf = pathlib.Path(flash).with_name("firmware.elf")
+    if elf.exists():
+        instructions, iterations = main_loop_instructions(emu, elf, ESTIMATE_MS)
+        print(f"s32.main_loop_instructions_estimate {instructions // max(iterations, 1)}")
+        sys.stderr.write(f"estimate (no timing fidelity): {instructions} instructions in {ESTIMATE_MS} ms of "
+                         f"virtual time, {iterations} main-loop iterations (1 kHz would be {ESTIMATE_MS}); at one "
+                         f"instruction a cycle an iteration takes {instructions / max(iterations, 1) / 84:.0f} us "
+                         f"of the 1000 us period\n")
     return 0
 
 
