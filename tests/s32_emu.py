@@ -6,15 +6,18 @@ chips the board carries, modelled at the register level (firmware/tests/s32_fake
 
 and the joint's configuration in the last 4 KB of flash: the flash file is composed as
 `bioscara flash --board s32` writes it (bioscara.s32flash.S32Image.composed). USART2 carries the
-REPL and the firmware's log. No timing fidelity: figures from here are functional (what the
-firmware prints, its heap), never times.
+REPL and the firmware's log. Virtual time (EmulatedS32: one instruction a cycle at 84 MHz) makes
+runs repeatable, but there is no timing fidelity: figures from here are functional (what the
+firmware prints, its heap) or estimates (instructions per main-loop iteration), never times.
 
 Needs Qiling 1.4.6 with unicorn 2.0.1.post1 (unicorn 2.1 breaks its memory map), which do not
 share an environment with the project's: `make s32-emu` makes build/qiling-venv, and
 
     build/qiling-venv/bin/python tests/s32_emu.py FLASH.bin
 
-boots FLASH.bin and prints `s32.heap_free_after_boot_kb` (bench/s32_image.py runs it).
+boots FLASH.bin, runs its main loop a little, and prints `s32.heap_free_after_boot_kb` and
+`s32.main_loop_instructions_estimate` (bench/s32_image.py and tests/test_s32_emulated.py run it;
+the estimate needs firmware.elf beside FLASH.bin).
 """
 
 from __future__ import annotations
@@ -36,8 +39,7 @@ ESTIMATE_MS = 20  # of the main loop counted instruction by instruction
 AFTER_BOOT_MS = 50  # of the main loop after the boot, for a fault in its first iterations
 
 
-# Qiling's DMA1 stream interrupts (stm32f401 env) and the transfer-complete flag of each stream
-# in LISR (streams 0-3) or HISR (4-7).
+# The transfer-complete flag of each DMA stream in LISR (streams 0-3) or HISR (4-7).
 _DMA_TCIF = (5, 11, 21, 27)
 _DMA_EN = 0x1
 _DMA_TCIE = 0x10
@@ -150,7 +152,8 @@ _SYSTICK_ENABLE = 0x1
 _SYSTICK_TICKINT = 0x2
 _SYSTICK_COUNTFLAG = 0x10000
 _UNMASK_STEPS = 64
-_IT_BITS = 0x0600FC00  # xPSR's IT/ICI field: the core is inside an IT block
+IRQ_SYSTICK = -1  # Qiling's numbering of the core's exceptions (qiling.arch.cortex_m_const.IRQ)
+IRQ_HARD_FAULT = -13
 
 
 class EmulatedS32:
@@ -170,6 +173,7 @@ class EmulatedS32:
         from qiling.core import Qiling
         from qiling.const import QL_ARCH, QL_OS, QL_VERBOSE
         from qiling.extensions.mcu.stm32f4 import stm32f401
+        from unicorn import arm_const
 
         self.board = Board()
         self.tmc_frames = TmcFramer(self.board.tmc)
@@ -185,8 +189,6 @@ class EmulatedS32:
         for label, struct in (("spi2", "S32TmcSpi"), ("spi3", "S32TleSpi")):
             _, base, kwargs = ql.hw.load_env(label.upper())
             ql.hw.create(label, struct, base, kwargs)
-        from unicorn import arm_const
-
         # S0-S15 and FPSCR: what a Cortex-M4F stacks on exception entry (Qiling stacks none)
         self._fp_stacked = [arm_const.UC_ARM_REG_S0 + i for i in range(16)] + [arm_const.UC_ARM_REG_FPSCR]
         ql.hw.systick.step = self._systick_step
@@ -202,7 +204,6 @@ class EmulatedS32:
         uc = self.ql.uc
         for _ in range(ms):
             for _ in range(CYCLES_PER_MS // SLICE):
-                self._leave_it_block()
                 self.ql.hw.step()
                 try:
                     uc.emu_start(self.ql.arch.effective_pc, 0, 0, SLICE)
@@ -231,12 +232,6 @@ class EmulatedS32:
         for _ in range(_UNMASK_STEPS):
             if not nvic.intrs or any(self._unmasked(n) for n in nvic.intrs):
                 return
-            self.ql.uc.emu_start(self.ql.arch.effective_pc, 0, 0, 1)
-
-    def _leave_it_block(self) -> None:
-        """Single-step out of an IT block: an interrupt taken inside one would lose its state."""
-        regs = self.ql.arch.regs
-        while regs.read("xpsr") & _IT_BITS:
             self.ql.uc.emu_start(self.ql.arch.effective_pc, 0, 0, 1)
 
     def _systick_step(self) -> None:
@@ -278,10 +273,6 @@ class EmulatedS32:
         if basepri and basepri <= self.ql.hw.nvic.get_priority(irq):
             return False
         return not (irq > IRQ_HARD_FAULT and regs.read("primask") & 1)
-
-
-IRQ_SYSTICK = -1
-IRQ_HARD_FAULT = -13
 
 
 class EmulationFault(Exception):
