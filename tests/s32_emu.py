@@ -29,10 +29,12 @@ import sys
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "firmware" / "tests"))
+sys.path.insert(0, str(ROOT / "firmware"))
 
 from s32_fakes import Board  # noqa: E402
 
 
+JOINT_ADDRESS = 0x11  # J1's, from the composed flash's configuration
 HEAP_LINE = re.compile(rb"booted: (\d+) bytes of heap free")
 BOOT_MS = 3000  # virtual time a boot may take (it takes about 940 ms)
 ESTIMATE_MS = 20  # of the main loop counted instruction by instruction
@@ -100,6 +102,86 @@ def _spi_device(framer):
     return DeviceSpi
 
 
+# STM32F4 I2C v1 registers (RM0368 section 18.6) as a target sees them.
+_I2C_SR1_ADDR = 0x2
+_I2C_SR1_STOPF = 0x10
+_I2C_SR1_RXNE = 0x40
+_I2C_SR1_TXE = 0x80
+_I2C_SR1_AF = 0x400
+_I2C_SR1_ERRORS = 0xDF00  # rc_w0: BERR ARLO AF OVR PECERR TIMEOUT SMBALERT
+_I2C_SR2_TRA = 0x4
+_I2C_CR1_PE = 0x1
+
+
+def _i2c_target():
+    """Qiling's STM32F4 I2C with the target side its model lacks: a controller on the bus
+    (`S32I2cTarget.post`) raises the events in the order the hardware does and
+    MicroPython's i2cslave.c expects (write: ADDR RXNE*n STOPF; read: ADDR TXE*(n+1) AF), and the
+    registers clear their flags as the reference manual says (ADDR: SR1 then SR2 read; RXNE: DR
+    read; TXE: DR write; STOPF: SR1 read then CR1 write; errors: written 0)."""
+    from qiling.hw.i2c.stm32f4xx_i2c import STM32F4xxI2c
+    from qiling.hw.peripheral import QlPeripheral
+
+    class S32I2cTarget(STM32F4xxI2c):
+        def __init__(self, ql, label, ev_intn=None, er_intn=None):
+            super().__init__(ql, label, ev_intn=ev_intn, er_intn=er_intn)
+            self.instance.SR1 = 0
+            self.instance.SR2 = 0
+            self.rx_byte = 0
+            self.sent = bytearray()
+            self._stop_seen = False
+
+        @QlPeripheral.monitor()
+        def read(self, offset: int, size: int) -> int:
+            regs = self.instance
+            if offset == self.struct.SR1.offset:
+                self._stop_seen = bool(regs.SR1 & _I2C_SR1_STOPF)
+                return regs.SR1
+            if offset == self.struct.SR2.offset:
+                value = regs.SR2
+                regs.SR1 &= ~_I2C_SR1_ADDR
+                return value
+            if offset == self.struct.DR.offset:
+                regs.SR1 &= ~_I2C_SR1_RXNE
+                return self.rx_byte
+            return super().read(offset, size)
+
+        @QlPeripheral.monitor()
+        def write(self, offset: int, size: int, value: int):
+            regs = self.instance
+            if offset == self.struct.SR1.offset:
+                regs.SR1 &= value | ~_I2C_SR1_ERRORS
+            elif offset == self.struct.DR.offset:
+                regs.SR1 &= ~_I2C_SR1_TXE
+                self.sent.append(value & 0xFF)
+            elif offset == self.struct.CR1.offset:
+                regs.CR1 = value
+                if self._stop_seen:
+                    regs.SR1 &= ~_I2C_SR1_STOPF
+            else:
+                super().write(offset, size, value)
+
+        def step(self):
+            pass
+
+        def address(self) -> int | None:
+            """The 7-bit address the target answers, or None when it is off the bus."""
+            regs = self.instance
+            return (regs.OAR1 >> 1) & 0x7F if regs.CR1 & _I2C_CR1_PE else None
+
+        def post(self, flags: int, transmitting: bool = False) -> None:
+            """An event of the controller: set the flags and raise the event interrupt."""
+            regs = self.instance
+            regs.SR2 = _I2C_SR2_TRA if transmitting else 0
+            regs.SR1 |= flags
+            self.ql.hw.nvic.set_pending(self.ev_intn)
+
+        def pending(self, flags: int) -> bool:
+            return bool(self.instance.SR1 & flags)
+
+    return S32I2cTarget
+
+
 class TmcFramer:
     """Bytes on SPI2 into TMC5130 datagrams (the reply is fixed when a frame starts)."""
 
@@ -152,6 +234,7 @@ _SYSTICK_ENABLE = 0x1
 _SYSTICK_TICKINT = 0x2
 _SYSTICK_COUNTFLAG = 0x10000
 _UNMASK_STEPS = 64
+_I2C_EVENT_SLICES = 80  # 10 ms: the firmware serves an event in its interrupt, within a slice
 IRQ_SYSTICK = -1  # Qiling's numbering of the core's exceptions (qiling.arch.cortex_m_const.IRQ)
 IRQ_HARD_FAULT = -13
 
@@ -182,39 +265,78 @@ class EmulatedS32:
         qiling.hw.S32TleSpi = _spi_device(self.tle_frames)
         ql = Qiling([str(flash), 0x08000000], archtype=QL_ARCH.CORTEX_M, ostype=QL_OS.MCU, env=stm32f401,
                     verbose=QL_VERBOSE.DISABLED)
-        for name in ("rcc", "flash interface", "pwr", "usart2", "gpioa", "gpiob", "gpioc", "gpioh", "i2c1",
+        qiling.hw.S32I2cTarget = _i2c_target()
+        for name in ("rcc", "flash interface", "pwr", "usart2", "gpioa", "gpiob", "gpioc", "gpioh",
                      "syscfg", "exti", "dma1"):
             ql.hw.create(name)
         ql.hw.stepable.pop("dma1")  # its streams move a byte per step; the SPI models do whole transfers
-        for label, struct in (("spi2", "S32TmcSpi"), ("spi3", "S32TleSpi")):
+        for label, struct in (("spi2", "S32TmcSpi"), ("spi3", "S32TleSpi"), ("i2c1", "S32I2cTarget")):
             _, base, kwargs = ql.hw.load_env(label.upper())
             ql.hw.create(label, struct, base, kwargs)
         # S0-S15 and FPSCR: what a Cortex-M4F stacks on exception entry (Qiling stacks none)
         self._fp_stacked = [arm_const.UC_ARM_REG_S0 + i for i in range(16)] + [arm_const.UC_ARM_REG_FPSCR]
         ql.hw.systick.step = self._systick_step
         ql.hw.nvic.step = self._take_interrupts
+        ql.hw.nvic.triggers = [(register, self._disable_interrupt if register.offset == ql.hw.nvic.struct.ICER.offset
+                                    else action) for register, action in ql.hw.nvic.triggers]
         self.ql = ql
         self.cycles = 0
         self.output = b""
 
     def run_ms(self, ms: int) -> bytes:
         """Advance `ms` milliseconds of virtual time; returns the new UART output."""
-        from unicorn import UcError
-
-        uc = self.ql.uc
-        for _ in range(ms):
-            for _ in range(CYCLES_PER_MS // SLICE):
-                self.ql.hw.step()
-                try:
-                    uc.emu_start(self.ql.arch.effective_pc, 0, 0, SLICE)
-                except UcError as exc:
-                    raise EmulationFault(self, exc) from exc
-                self.cycles += SLICE
-                self._reach_unmasked()
-            self.board.tick_ms()
+        for _ in range(ms * CYCLES_PER_MS // SLICE):
+            self._run_slice()
         got = self.ql.hw.usart2.recv()
         self.output += got
         return got
+
+    def _run_slice(self) -> None:
+        from unicorn import UcError
+
+        self.ql.hw.step()
+        try:
+            self.ql.uc.emu_start(self.ql.arch.effective_pc, 0, 0, SLICE)
+        except UcError as exc:
+            raise EmulationFault(self, exc) from exc
+        self.cycles += SLICE
+        self._reach_unmasked()
+        if self.cycles % CYCLES_PER_MS == 0:
+            self.board.tick_ms()
+
+    def i2c_transfer(self, address: int, write: bytes | None, read_len: int) -> bytes:
+        """One transaction of a controller on the joint bus (I2C1), as `Bus.transfer` makes it:
+        write `write`, repeated START, read `read_len` bytes, STOP. OSError when nobody answers
+        the address (NACK); TimeoutError when the target stops serving its events."""
+        target = self.ql.hw.i2c1
+        if target.address() != address:
+            raise OSError(f"no I2C target answers 0x{address:02x}")
+        if write is not None:
+            self._i2c_event(_I2C_SR1_ADDR)
+            for byte in write:
+                target.rx_byte = byte
+                self._i2c_event(_I2C_SR1_RXNE)
+            if not read_len:
+                self._i2c_event(_I2C_SR1_STOPF)
+                return b""
+        target.sent.clear()
+        self._i2c_event(_I2C_SR1_ADDR, transmitting=True)
+        for _ in range(read_len + 1):  # the last TXE comes before the controller's NACK
+            self._i2c_event(_I2C_SR1_TXE, transmitting=True)
+        target.post(_I2C_SR1_AF, transmitting=True)
+        self._run_slice()
+        if len(target.sent) < read_len:
+            raise TimeoutError(f"the target sent {len(target.sent)} of {read_len} bytes")
+        return bytes(target.sent[:read_len])
+
+    def _i2c_event(self, flags: int, transmitting: bool = False) -> None:
+        target = self.ql.hw.i2c1
+        target.post(flags, transmitting)
+        for _ in range(_I2C_EVENT_SLICES):
+            self._run_slice()
+            if not target.pending(flags):
+                return
+        raise TimeoutError(f"the I2C target left event 0x{flags:x} unserved")
 
     def run_until(self, text: bytes, ms: int) -> bool:
         """Run until the UART output holds `text`, for at most `ms` of virtual time."""
@@ -267,6 +389,18 @@ class EmulatedS32:
             for reg, value in zip(self._fp_stacked, fp):
                 self.ql.uc.reg_write(reg, value)
 
+    def _disable_interrupt(self, irq: int) -> None:
+        """NVIC ICER: disable `irq` alone (Qiling's clears every other enable bit of its word but
+        the low five: a DMA stream's interrupt disabled at the end of an SPI transfer would
+        disable the joint bus's I2C1 event interrupt)."""
+        nvic = self.ql.hw.nvic
+        if irq < 0:
+            self.ql.hw.scb.disable(irq)
+            return
+        word, bit = irq >> nvic.OFFSET, 1 << (irq & nvic.MASK)
+        nvic.instance.ISER[word] &= ~bit
+        nvic.instance.ICER[word] &= ~bit
+
     def _unmasked(self, irq: int) -> bool:
         regs = self.ql.arch.regs
         basepri = regs.read("basepri") & 0xF0
@@ -282,6 +416,15 @@ class EmulationFault(Exception):
         regs = emu.ql.arch.regs
         super().__init__(f"{cause} at pc 0x{regs.read('pc'):08x} (lr 0x{regs.read('lr'):08x}) "
                          f"after {emu.cycles} cycles")
+
+
+def legacy_read(emu: EmulatedS32, name: str) -> bytes:
+    """The wire bytes of a legacy register read as the host makes it (bioscara.link.legacy:
+    the register's address, then its reply and the flags byte)."""
+    from joint.spec import protocol
+
+    register = protocol.register(getattr(protocol, name))
+    return emu.i2c_transfer(JOINT_ADDRESS, bytes([register.addr]), register.rsize + 1)
 
 
 def main_loop_instructions(emu: EmulatedS32, elf: pathlib.Path, ms: int) -> tuple[int, int]:
@@ -318,7 +461,8 @@ def main(flash: str) -> int:
         frames = emu.board.tmc.frames
         if booted:
             emu.run_ms(AFTER_BOOT_MS)
-    except EmulationFault as exc:
+            identity = legacy_read(emu, "IDENTITY")
+    except (EmulationFault, OSError) as exc:  # OSError: the joint bus did not answer (TimeoutError too)
         sys.stderr.write(emu.output.decode(errors="replace"))
         sys.stderr.write(f"\nemulation stopped: {exc}\n")
         return 1
@@ -327,7 +471,8 @@ def main(flash: str) -> int:
         sys.stderr.write(f"the emulated S32 did not report its heap within {BOOT_MS} ms\n")
         return 1
     sys.stderr.write(f"booted in {boot_ms} ms of virtual time; then {emu.board.tmc.frames - frames} TMC5130 "
-                     f"datagrams in {AFTER_BOOT_MS} ms\n")
+                     f"datagrams in {AFTER_BOOT_MS} ms\nlegacy IDENTITY read on I2C1 at 0x{JOINT_ADDRESS:02x}: "
+                     f"{identity.hex()}\n")
     free = int(HEAP_LINE.search(emu.output).group(1))
     print(f"s32.heap_free_after_boot_kb {free / 1024:.1f}")
     elf = pathlib.Path(flash).with_name("firmware.elf")
