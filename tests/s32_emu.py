@@ -462,6 +462,7 @@ def main(flash: str) -> int:
         if booted:
             emu.run_ms(AFTER_BOOT_MS)
             identity = legacy_read(emu, "IDENTITY")
+            angle = legacy_read(emu, "ANGLEMOVED")
     except (EmulationFault, OSError) as exc:  # OSError: the joint bus did not answer (TimeoutError too)
         sys.stderr.write(emu.output.decode(errors="replace"))
         sys.stderr.write(f"\nemulation stopped: {exc}\n")
@@ -471,8 +472,9 @@ def main(flash: str) -> int:
         sys.stderr.write(f"the emulated S32 did not report its heap within {BOOT_MS} ms\n")
         return 1
     sys.stderr.write(f"booted in {boot_ms} ms of virtual time; then {emu.board.tmc.frames - frames} TMC5130 "
-                     f"datagrams in {AFTER_BOOT_MS} ms\nlegacy IDENTITY read on I2C1 at 0x{JOINT_ADDRESS:02x}: "
-                     f"{identity.hex()}\n")
+                     f"datagrams in {AFTER_BOOT_MS} ms\n")
+    for name, reply in (("IDENTITY", identity), ("ANGLEMOVED", angle)):
+        sys.stderr.write(f"legacy {name} read on I2C1 at 0x{JOINT_ADDRESS:02x}: {reply.hex()}\n")
     free = int(HEAP_LINE.search(emu.output).group(1))
     print(f"s32.heap_free_after_boot_kb {free / 1024:.1f}")
     elf = pathlib.Path(flash).with_name("firmware.elf")

@@ -1,6 +1,7 @@
 """The S32 image booted on the emulated board (tests/s32_emu.py: Qiling's STM32F401 with the
 TMC5130 and TLE5012B models on SPI2/SPI3, in virtual time): it boots as J1 with the heap the issue
-asks to keep free, joins the bus, and its main loop drives the TMC5130 with no motor fault."""
+asks to keep free, joins the bus and answers the host's legacy reads on I2C1 (the STM32F4 I2C target
+model), and its main loop drives the TMC5130 with no motor fault."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ import subprocess
 import pytest
 
 from bioscara import s32flash
+from bioscara.firmware.spec import protocol as P
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 IMAGE = ROOT / "build" / "s32" / "firmware.bin"
@@ -46,13 +48,23 @@ def test_the_main_loop_drives_the_tmc5130_without_a_motor_fault(boot):
     assert datagrams is not None and int(datagrams.group(1)) > 0, boot.stderr
 
 
-def test_the_joint_bus_serves_a_legacy_register_read(boot):
-    """A host's IDENTITY read (register byte, repeated START, 9 bytes + flags) on the emulated
-    I2C1 at 0x11: every event is served and the reply has its length. Its content is not asserted:
-    the stm32 port's I2CTarget.readinto reads the data register whether or not a byte arrived,
-    so the legacy adapter's END_WRITE drain counts the register byte twice and the joint rejects
-    the frame (its flags byte answers, FLAG_ERROR set); see the S32 issue."""
+def _legacy_read(boot, name: str) -> tuple[tuple, int]:
+    """The emulated joint's reply to the host's read of register `name`, decoded as the host
+    decodes it (bioscara.link.legacy): (values, flags)."""
     assert boot.returncode == 0, boot.stderr
-    read = re.search(r"legacy IDENTITY read on I2C1 at 0x11: ([0-9a-f]*)", boot.stderr)
+    read = re.search(rf"legacy {name} read on I2C1 at 0x11: ([0-9a-f]*)", boot.stderr)
     assert read is not None, boot.stderr
-    assert len(bytes.fromhex(read.group(1))) == 10
+    reply = bytes.fromhex(read.group(1))
+    return P.register(getattr(P, name)).decode(reply[:-1]), reply[-1]
+
+
+def test_the_joint_answers_the_host_s_identity_read_on_the_joint_bus(boot):
+    (protocol, major, minor, patch, joint_id, spec_hash), flags = _legacy_read(boot, "IDENTITY")
+    assert not flags & P.FLAG_ERROR
+    assert (protocol, joint_id, spec_hash) == (P.PROTOCOL_VERSION, 1, P.SPEC_HASH)
+
+
+def test_the_joint_reports_no_angle_moved_at_rest(boot):
+    (degrees,), flags = _legacy_read(boot, "ANGLEMOVED")
+    assert not flags & P.FLAG_ERROR
+    assert degrees == 0.0
