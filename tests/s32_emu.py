@@ -162,7 +162,7 @@ def _i2c_target():
                 super().write(offset, size, value)
 
         def step(self):
-            pass
+            """Nothing: Qiling's step runs its controller-side transfers, which a target has not."""
 
         def address(self) -> int | None:
             """The 7-bit address the target answers, or None when it is off the bus."""
@@ -248,7 +248,8 @@ class EmulatedS32:
     counter it was stopped at; the next call runs a new task beside it, and the stale one resumes
     the CPU at its old pc with the current registers (the fetch faults the first attempt met). Its
     NVIC also drops an interrupt raised while PRIMASK is set (MicroPython's WFI loops do exactly
-    that) instead of keeping it pending, and its SysTick reloads a slice late.
+    that) instead of keeping it pending, its ICER write disables every other interrupt of the word
+    too, and its SysTick reloads a slice late.
     """
 
     def __init__(self, flash: pathlib.Path) -> None:
