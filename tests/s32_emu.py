@@ -428,6 +428,28 @@ def legacy_read(emu: EmulatedS32, name: str) -> bytes:
     return emu.i2c_transfer(JOINT_ADDRESS, bytes([register.addr]), register.rsize + 1)
 
 
+def i2c_interrupt_instructions(emu: EmulatedS32, name: str) -> int:
+    """Instructions the I2C1 event interrupt executes over one legacy read of register `name`
+    (every event of the transaction, the firmware's Python handler included). Slow (a Python hook
+    on every instruction): for the estimate only."""
+    from unicorn import UC_HOOK_CODE
+    from unicorn.arm_const import UC_ARM_REG_IPSR
+
+    in_i2c_event = 16 + emu.ql.hw.i2c1.ev_intn  # IPSR holds the exception number
+    count = [0]
+
+    def counter(uc, address, size, _):
+        if uc.reg_read(UC_ARM_REG_IPSR) == in_i2c_event:
+            count[0] += 1
+
+    hook = emu.ql.uc.hook_add(UC_HOOK_CODE, counter)
+    emu.ql.uc.ctl_flush_tb()  # blocks translated before the hook would run uncounted
+    legacy_read(emu, name)
+    emu.ql.uc.hook_del(hook)
+    emu.ql.uc.ctl_flush_tb()
+    return count[0]
+
+
 def main_loop_instructions(emu: EmulatedS32, elf: pathlib.Path, ms: int) -> tuple[int, int]:
     """(instructions executed, main-loop iterations) over `ms` of virtual time, interrupts
     included. An iteration is app.run's `time.ticks_add(next_us, 1000)`: a call of the C
@@ -482,10 +504,13 @@ def main(flash: str) -> int:
     if elf.exists():
         instructions, iterations = main_loop_instructions(emu, elf, ESTIMATE_MS)
         print(f"s32.main_loop_instructions_estimate {instructions // max(iterations, 1)}")
+        in_interrupt = i2c_interrupt_instructions(emu, "IDENTITY")
+        print(f"s32.i2c_read_instructions_estimate {in_interrupt}")
         sys.stderr.write(f"estimate (no timing fidelity): {instructions} instructions in {ESTIMATE_MS} ms of "
                          f"virtual time, {iterations} main-loop iterations (1 kHz would be {ESTIMATE_MS}); at one "
                          f"instruction a cycle an iteration takes {instructions / max(iterations, 1) / 84:.0f} us "
-                         f"of the 1000 us period\n")
+                         f"of the 1000 us period; a legacy IDENTITY read (1 byte written, 10 read) runs "
+                         f"{in_interrupt} instructions in the I2C1 event interrupt ({in_interrupt / 84:.0f} us)\n")
     return 0
 
 
