@@ -6,34 +6,56 @@ chips the board carries, modelled at the register level (firmware/tests/s32_fake
 
 and the joint's configuration in the last 4 KB of flash: the flash file is composed as
 `bioscara flash --board s32` writes it (bioscara.s32flash.S32Image.composed). USART2 carries the
-REPL and the firmware's log. No timing fidelity: figures from here are functional (what the
-firmware prints, its heap), never times.
+REPL and the firmware's log. Virtual time (EmulatedS32: one instruction a cycle at 84 MHz) makes
+runs repeatable, but there is no timing fidelity: figures from here are functional (what the
+firmware prints, its heap) or estimates (instructions per main-loop iteration), never times.
 
 Needs Qiling 1.4.6 with unicorn 2.0.1.post1 (unicorn 2.1 breaks its memory map), which do not
 share an environment with the project's: `make s32-emu` makes build/qiling-venv, and
 
     build/qiling-venv/bin/python tests/s32_emu.py FLASH.bin
 
-boots FLASH.bin and prints `s32.heap_free_after_boot_kb` (bench/s32_image.py runs it).
+boots FLASH.bin, runs its main loop a little, and prints `s32.heap_free_after_boot_kb` and
+`s32.main_loop_instructions_estimate` (bench/s32_image.py and tests/test_s32_emulated.py run it;
+the estimate needs firmware.elf beside FLASH.bin).
 """
 
 from __future__ import annotations
 
 import pathlib
 import re
+import subprocess
 import sys
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "firmware" / "tests"))
+sys.path.insert(0, str(ROOT / "firmware"))
 
 from s32_fakes import Board  # noqa: E402
 
 
+JOINT_ADDRESS = 0x11  # J1's, from the composed flash's configuration
 HEAP_LINE = re.compile(rb"booted: (\d+) bytes of heap free")
+BOOT_MS = 3000  # virtual time a boot may take (it takes about 940 ms)
+ESTIMATE_MS = 20  # of the main loop counted instruction by instruction
+AFTER_BOOT_MS = 50  # of the main loop after the boot, for a fault in its first iterations
+
+
+# The transfer-complete flag of each DMA stream in LISR (streams 0-3) or HISR (4-7).
+_DMA_TCIF = (5, 11, 21, 27)
+_DMA_EN = 0x1
+_DMA_TCIE = 0x10
+_DMA_DIR_M2P = 0x40
+_SPI_CR2_TXDMAEN = 0x2
 
 
 def _spi_device(framer):
-    """A Qiling STM32F4 SPI peripheral whose data register talks to `framer(byte) -> reply`."""
+    """A Qiling STM32F4 SPI peripheral whose data register talks to `framer(byte) -> reply`.
+
+    Transfers longer than a byte go through DMA (MicroPython's spi_transfer): when the firmware
+    sets TXDMAEN, the DMA1 streams pointed at this data register move the whole transfer at once
+    and raise their transfer-complete interrupts, as the real streams do once the last byte
+    has shifted."""
     from qiling.hw.peripheral import QlPeripheral
     from qiling.hw.spi.stm32f4xx_spi import STM32F4xxSpi
 
@@ -43,7 +65,10 @@ def _spi_device(framer):
             if offset == self.struct.DR.offset:
                 self.instance.DR = framer(value & 0xFF)
                 return
+            starts_dma = offset == self.struct.CR2.offset and value & ~self.instance.CR2 & _SPI_CR2_TXDMAEN
             super().write(offset, size, value)
+            if starts_dma:
+                self._dma_transfer()
 
         @QlPeripheral.monitor()
         def read(self, offset: int, size: int) -> int:
@@ -51,7 +76,110 @@ def _spi_device(framer):
                 return self.instance.DR
             return super().read(offset, size)
 
+        def _dma_transfer(self):
+            dma = self.ql.hw.dma1
+            data_register = self.base + self.struct.DR.offset
+            streams = [(n, s) for n, s in enumerate(dma.instance.stream) if s.CR & _DMA_EN and s.PAR == data_register]
+            tx = [s for _, s in streams if s.CR & _DMA_DIR_M2P]
+            if not tx:
+                return
+            rx = [s for _, s in streams if not s.CR & _DMA_DIR_M2P]
+            out = bytes(self.ql.mem.read(tx[0].M0AR, tx[0].NDTR))
+            replies = bytes(framer(byte) for byte in out)
+            if rx:
+                self.ql.mem.write(rx[0].M0AR, replies[:rx[0].NDTR])
+            for number, stream in streams:
+                stream.NDTR = 0
+                stream.CR &= ~_DMA_EN
+                flag = 1 << _DMA_TCIF[number % 4]
+                if number < 4:
+                    dma.instance.LISR |= flag
+                else:
+                    dma.instance.HISR |= flag
+                if stream.CR & _DMA_TCIE:
+                    self.ql.hw.nvic.set_pending(dma.intn[number])
+
     return DeviceSpi
+
+
+# STM32F4 I2C v1 registers (RM0368 section 18.6) as a target sees them.
+_I2C_SR1_ADDR = 0x2
+_I2C_SR1_STOPF = 0x10
+_I2C_SR1_RXNE = 0x40
+_I2C_SR1_TXE = 0x80
+_I2C_SR1_AF = 0x400
+_I2C_SR1_ERRORS = 0xDF00  # rc_w0: BERR ARLO AF OVR PECERR TIMEOUT SMBALERT
+_I2C_SR2_TRA = 0x4
+_I2C_CR1_PE = 0x1
+
+
+def _i2c_target():
+    """Qiling's STM32F4 I2C with the target side its model lacks: a controller on the bus
+    (`S32I2cTarget.post`) raises the events in the order the hardware does and
+    MicroPython's i2cslave.c expects (write: ADDR RXNE*n STOPF; read: ADDR TXE*(n+1) AF), and the
+    registers clear their flags as the reference manual says (ADDR: SR1 then SR2 read; RXNE: DR
+    read; TXE: DR write; STOPF: SR1 read then CR1 write; errors: written 0)."""
+    from qiling.hw.i2c.stm32f4xx_i2c import STM32F4xxI2c
+    from qiling.hw.peripheral import QlPeripheral
+
+    class S32I2cTarget(STM32F4xxI2c):
+        def __init__(self, ql, label, ev_intn=None, er_intn=None):
+            super().__init__(ql, label, ev_intn=ev_intn, er_intn=er_intn)
+            self.instance.SR1 = 0
+            self.instance.SR2 = 0
+            self.rx_byte = 0
+            self.sent = bytearray()
+            self._stop_seen = False
+
+        @QlPeripheral.monitor()
+        def read(self, offset: int, size: int) -> int:
+            regs = self.instance
+            if offset == self.struct.SR1.offset:
+                self._stop_seen = bool(regs.SR1 & _I2C_SR1_STOPF)
+                return regs.SR1
+            if offset == self.struct.SR2.offset:
+                value = regs.SR2
+                regs.SR1 &= ~_I2C_SR1_ADDR
+                return value
+            if offset == self.struct.DR.offset:
+                regs.SR1 &= ~_I2C_SR1_RXNE
+                return self.rx_byte
+            return super().read(offset, size)
+
+        @QlPeripheral.monitor()
+        def write(self, offset: int, size: int, value: int):
+            regs = self.instance
+            if offset == self.struct.SR1.offset:
+                regs.SR1 &= value | ~_I2C_SR1_ERRORS
+            elif offset == self.struct.DR.offset:
+                regs.SR1 &= ~_I2C_SR1_TXE
+                self.sent.append(value & 0xFF)
+            elif offset == self.struct.CR1.offset:
+                regs.CR1 = value
+                if self._stop_seen:
+                    regs.SR1 &= ~_I2C_SR1_STOPF
+            else:
+                super().write(offset, size, value)
+
+        def step(self):
+            """Nothing: Qiling's step runs its controller-side transfers, which a target has not."""
+
+        def address(self) -> int | None:
+            """The 7-bit address the target answers, or None when it is off the bus."""
+            regs = self.instance
+            return (regs.OAR1 >> 1) & 0x7F if regs.CR1 & _I2C_CR1_PE else None
+
+        def post(self, flags: int, transmitting: bool = False) -> None:
+            """An event of the controller: set the flags and raise the event interrupt."""
+            regs = self.instance
+            regs.SR2 = _I2C_SR2_TRA if transmitting else 0
+            regs.SR1 |= flags
+            self.ql.hw.nvic.set_pending(self.ev_intn)
+
+        def pending(self, flags: int) -> bool:
+            return bool(self.instance.SR1 & flags)
+
+    return S32I2cTarget
 
 
 class TmcFramer:
@@ -95,14 +223,41 @@ class TleFramer:
         return self.buf[n - 2]
 
 
+# Virtual time: one instruction is one cycle of the 84 MHz core (an estimate: the emulator has no
+# timing fidelity). The CPU runs in slices of SLICE instructions; between slices the peripherals
+# step, SysTick counts the slice down, pending interrupts are taken and the driver's ramp advances a
+# millisecond at a time. A WFI ends its slice early: the core sleeps out the rest of it.
+CORE_HZ = 84_000_000
+CYCLES_PER_MS = CORE_HZ // 1000
+SLICE = CYCLES_PER_MS // 8
+_SYSTICK_ENABLE = 0x1
+_SYSTICK_TICKINT = 0x2
+_SYSTICK_COUNTFLAG = 0x10000
+_UNMASK_STEPS = 64
+_I2C_EVENT_SLICES = 80  # 10 ms: the firmware serves an event in its interrupt, within a slice
+IRQ_SYSTICK = -1  # Qiling's numbering of the core's exceptions (qiling.arch.cortex_m_const.IRQ)
+IRQ_HARD_FAULT = -13
+
+
 class EmulatedS32:
-    """A composed flash file (image + configuration) booted; `run(rounds)` advances it."""
+    """A composed flash file (image + configuration) booted on Qiling's STM32F401, run in virtual
+    time by a deterministic scheduler (`run_ms`).
+
+    Qiling's own MCU loop (`ql.run`, fast mode) is not used: it slices by wall-clock time, so no
+    two runs agree, and each `ql.run` call leaves its scheduler task registered with the program
+    counter it was stopped at; the next call runs a new task beside it, and the stale one resumes
+    the CPU at its old pc with the current registers (the fetch faults the first attempt met). Its
+    NVIC also drops an interrupt raised while PRIMASK is set (MicroPython's WFI loops do exactly
+    that) instead of keeping it pending, its ICER write disables every other interrupt of the word
+    too, and its SysTick reloads a slice late.
+    """
 
     def __init__(self, flash: pathlib.Path) -> None:
         import qiling.hw
         from qiling.core import Qiling
         from qiling.const import QL_ARCH, QL_OS, QL_VERBOSE
         from qiling.extensions.mcu.stm32f4 import stm32f401
+        from unicorn import arm_const
 
         self.board = Board()
         self.tmc_frames = TmcFramer(self.board.tmc)
@@ -111,46 +266,251 @@ class EmulatedS32:
         qiling.hw.S32TleSpi = _spi_device(self.tle_frames)
         ql = Qiling([str(flash), 0x08000000], archtype=QL_ARCH.CORTEX_M, ostype=QL_OS.MCU, env=stm32f401,
                     verbose=QL_VERBOSE.DISABLED)
-        for name in ("rcc", "flash interface", "pwr", "usart2", "gpioa", "gpiob", "gpioc", "gpioh", "i2c1",
-                     "syscfg", "exti"):
+        qiling.hw.S32I2cTarget = _i2c_target()
+        for name in ("rcc", "flash interface", "pwr", "usart2", "gpioa", "gpiob", "gpioc", "gpioh",
+                     "syscfg", "exti", "dma1"):
             ql.hw.create(name)
-        for label, struct in (("spi2", "S32TmcSpi"), ("spi3", "S32TleSpi")):
+        ql.hw.stepable.pop("dma1")  # its streams move a byte per step; the SPI models do whole transfers
+        for label, struct in (("spi2", "S32TmcSpi"), ("spi3", "S32TleSpi"), ("i2c1", "S32I2cTarget")):
             _, base, kwargs = ql.hw.load_env(label.upper())
             ql.hw.create(label, struct, base, kwargs)
-        ql.os.fast_mode = True
+        # S0-S15 and FPSCR: what a Cortex-M4F stacks on exception entry (Qiling stacks none)
+        self._fp_stacked = [arm_const.UC_ARM_REG_S0 + i for i in range(16)] + [arm_const.UC_ARM_REG_FPSCR]
+        ql.hw.systick.step = self._systick_step
+        ql.hw.nvic.step = self._take_interrupts
+        ql.hw.nvic.triggers = [(register, self._disable_interrupt if register.offset == ql.hw.nvic.struct.ICER.offset
+                                    else action) for register, action in ql.hw.nvic.triggers]
         self.ql = ql
+        self.cycles = 0
         self.output = b""
 
-    def run(self, rounds: int) -> bytes:
-        """Advance by `rounds` of Qiling's fast-mode scheduler; returns the new UART output."""
-        self.ql.run(count=rounds)
+    def run_ms(self, ms: int) -> bytes:
+        """Advance `ms` milliseconds of virtual time; returns the new UART output."""
+        for _ in range(ms * CYCLES_PER_MS // SLICE):
+            self._run_slice()
         got = self.ql.hw.usart2.recv()
         self.output += got
         return got
 
-    def run_until(self, text: bytes, rounds: int = 200, step: int = 100000) -> bool:
-        for _ in range(rounds):
-            self.run(step)
+    def _run_slice(self) -> None:
+        from unicorn import UcError
+
+        self.ql.hw.step()
+        try:
+            self.ql.uc.emu_start(self.ql.arch.effective_pc, 0, 0, SLICE)
+        except UcError as exc:
+            raise EmulationFault(self, exc) from exc
+        self.cycles += SLICE
+        self._reach_unmasked()
+        if self.cycles % CYCLES_PER_MS == 0:
+            self.board.tick_ms()
+
+    def i2c_transfer(self, address: int, write: bytes | None, read_len: int) -> bytes:
+        """One transaction of a controller on the joint bus (I2C1), as `Bus.transfer` makes it:
+        write `write`, repeated START, read `read_len` bytes, STOP. OSError when nobody answers
+        the address (NACK); TimeoutError when the target stops serving its events."""
+        target = self.ql.hw.i2c1
+        if target.address() != address:
+            raise OSError(f"no I2C target answers 0x{address:02x}")
+        if write is not None:
+            self._i2c_event(_I2C_SR1_ADDR)
+            for byte in write:
+                target.rx_byte = byte
+                self._i2c_event(_I2C_SR1_RXNE)
+            if not read_len:
+                self._i2c_event(_I2C_SR1_STOPF)
+                return b""
+        target.sent.clear()
+        self._i2c_event(_I2C_SR1_ADDR, transmitting=True)
+        for _ in range(read_len + 1):  # the last TXE comes before the controller's NACK
+            self._i2c_event(_I2C_SR1_TXE, transmitting=True)
+        target.post(_I2C_SR1_AF, transmitting=True)
+        self._run_slice()
+        if len(target.sent) < read_len:
+            raise TimeoutError(f"the target sent {len(target.sent)} of {read_len} bytes")
+        return bytes(target.sent[:read_len])
+
+    def _i2c_event(self, flags: int, transmitting: bool = False) -> None:
+        target = self.ql.hw.i2c1
+        target.post(flags, transmitting)
+        for _ in range(_I2C_EVENT_SLICES):
+            self._run_slice()
+            if not target.pending(flags):
+                return
+        raise TimeoutError(f"the I2C target left event 0x{flags:x} unserved")
+
+    def run_until(self, text: bytes, ms: int) -> bool:
+        """Run until the UART output holds `text`, for at most `ms` of virtual time."""
+        for _ in range(ms):
             if text in self.output:
                 return True
-        return False
+            self.run_ms(1)
+        return text in self.output
+
+    def _reach_unmasked(self) -> None:
+        """With an interrupt pending but masked (MicroPython sleeps in `cpsid i; wfi; msr PRIMASK`),
+        step on until the mask lifts, so the interrupt is taken where the hardware takes it rather
+        than a slice later, every slice."""
+        nvic = self.ql.hw.nvic
+        for _ in range(_UNMASK_STEPS):
+            if not nvic.intrs or any(self._unmasked(n) for n in nvic.intrs):
+                return
+            self.ql.uc.emu_start(self.ql.arch.effective_pc, 0, 0, 1)
+
+    def _systick_step(self) -> None:
+        """SysTick counts down a slice of core clocks, reloading from LOAD as the hardware does."""
+        tick = self.ql.hw.systick.instance
+        if not tick.CTRL & _SYSTICK_ENABLE:
+            return
+        value = tick.VAL - SLICE
+        if value < 0:
+            value %= tick.LOAD + 1
+            tick.CTRL |= _SYSTICK_COUNTFLAG
+            if tick.CTRL & _SYSTICK_TICKINT:
+                self.ql.hw.nvic.set_pending(IRQ_SYSTICK)
+        tick.VAL = value
+
+    def _take_interrupts(self) -> None:
+        """Take the pending interrupts the core's masks allow, highest priority first; the others
+        stay pending (Qiling's NVIC would drop them)."""
+        nvic = self.ql.hw.nvic
+        arch = self.ql.arch
+        while nvic.intrs:
+            pending = sorted(set(nvic.intrs), key=nvic.get_priority)
+            taken = next((n for n in pending if self._unmasked(n)), None)
+            if taken is None:
+                nvic.intrs = pending
+                return
+            nvic.intrs = [n for n in pending if n != taken]
+            nvic.clear_pending(taken)
+            fp = [self.ql.uc.reg_read(reg) for reg in self._fp_stacked]
+            arch.interrupt_handler(self.ql, taken)
+            if arch.regs.read("ipsr"):
+                raise EmulationFault(self, RuntimeError(f"interrupt {taken} did not return"))
+            for reg, value in zip(self._fp_stacked, fp):
+                self.ql.uc.reg_write(reg, value)
+
+    def _disable_interrupt(self, irq: int) -> None:
+        """NVIC ICER: disable `irq` alone (Qiling's clears every other enable bit of its word but
+        the low five: a DMA stream's interrupt disabled at the end of an SPI transfer would
+        disable the joint bus's I2C1 event interrupt)."""
+        nvic = self.ql.hw.nvic
+        if irq < 0:
+            self.ql.hw.scb.disable(irq)
+            return
+        word, bit = irq >> nvic.OFFSET, 1 << (irq & nvic.MASK)
+        nvic.instance.ISER[word] &= ~bit
+        nvic.instance.ICER[word] &= ~bit
+
+    def _unmasked(self, irq: int) -> bool:
+        regs = self.ql.arch.regs
+        basepri = regs.read("basepri") & 0xF0
+        if basepri and basepri <= self.ql.hw.nvic.get_priority(irq):
+            return False
+        return not (irq > IRQ_HARD_FAULT and regs.read("primask") & 1)
+
+
+class EmulationFault(Exception):
+    """The emulated CPU stopped (unicorn's fault): where, with the symbols' addresses."""
+
+    def __init__(self, emu: EmulatedS32, cause: Exception) -> None:
+        regs = emu.ql.arch.regs
+        super().__init__(f"{cause} at pc 0x{regs.read('pc'):08x} (lr 0x{regs.read('lr'):08x}) "
+                         f"after {emu.cycles} cycles")
+
+
+def legacy_read(emu: EmulatedS32, name: str) -> bytes:
+    """The wire bytes of a legacy register read as the host makes it (bioscara.link.legacy:
+    the register's address, then its reply and the flags byte)."""
+    from joint.spec import protocol
+
+    register = protocol.register(getattr(protocol, name))
+    return emu.i2c_transfer(JOINT_ADDRESS, bytes([register.addr]), register.rsize + 1)
+
+
+def i2c_interrupt_instructions(emu: EmulatedS32, name: str) -> int:
+    """Instructions the I2C1 event interrupt executes over one legacy read of register `name`
+    (every event of the transaction, the firmware's Python handler included). Slow (a Python hook
+    on every instruction): for the estimate only."""
+    from unicorn import UC_HOOK_CODE
+    from unicorn.arm_const import UC_ARM_REG_IPSR
+
+    in_i2c_event = 16 + emu.ql.hw.i2c1.ev_intn  # IPSR holds the exception number
+    count = [0]
+
+    def counter(uc, address, size, _):
+        if uc.reg_read(UC_ARM_REG_IPSR) == in_i2c_event:
+            count[0] += 1
+
+    hook = emu.ql.uc.hook_add(UC_HOOK_CODE, counter)
+    emu.ql.uc.ctl_flush_tb()  # blocks translated before the hook would run uncounted
+    legacy_read(emu, name)
+    emu.ql.uc.hook_del(hook)
+    emu.ql.uc.ctl_flush_tb()
+    return count[0]
+
+
+def main_loop_instructions(emu: EmulatedS32, elf: pathlib.Path, ms: int) -> tuple[int, int]:
+    """(instructions executed, main-loop iterations) over `ms` of virtual time, interrupts
+    included. An iteration is app.run's `time.ticks_add(next_us, 1000)`: a call of the C
+    function time_ticks_add with delta 1000 (the small int 1000 is 2001 in r1). Slow (a Python
+    hook on every instruction): for the estimate only."""
+    from unicorn import UC_HOOK_CODE
+    from unicorn.arm_const import UC_ARM_REG_R1
+
+    symbols = subprocess.run(["arm-none-eabi-nm", str(elf)], capture_output=True, text=True, check=True).stdout
+    ticks_add = next(int(line.split()[0], 16) for line in symbols.splitlines() if line.endswith(" time_ticks_add.lto_priv.0"))
+    counts = [0, 0]
+
+    def count(uc, address, size, _):
+        counts[0] += 1
+        if address == ticks_add and uc.reg_read(UC_ARM_REG_R1) == 2001:
+            counts[1] += 1
+
+    hook = emu.ql.uc.hook_add(UC_HOOK_CODE, count)
+    emu.ql.uc.ctl_flush_tb()  # blocks translated before the hook would run uncounted
+    emu.run_ms(ms)
+    emu.ql.uc.hook_del(hook)
+    emu.ql.uc.ctl_flush_tb()
+    return counts[0], counts[1]
 
 
 def main(flash: str) -> int:
+    """Boot `flash`, run the main loop AFTER_BOOT_MS more; the log to stderr, the heap to stdout."""
     emu = EmulatedS32(pathlib.Path(flash))
     try:
-        booted = emu.run_until(b"heap free")
-    except Exception as exc:  # unicorn's fault (UcError), with the CPU's state: the emulation stopped
-        regs = emu.ql.arch.regs
+        booted = emu.run_until(b"heap free", BOOT_MS)
+        boot_ms = emu.cycles // CYCLES_PER_MS
+        frames = emu.board.tmc.frames
+        if booted:
+            emu.run_ms(AFTER_BOOT_MS)
+            identity = legacy_read(emu, "IDENTITY")
+            angle = legacy_read(emu, "ANGLEMOVED")
+    except (EmulationFault, OSError) as exc:  # OSError: the joint bus did not answer (TimeoutError too)
         sys.stderr.write(emu.output.decode(errors="replace"))
-        sys.stderr.write(f"\nemulation stopped: {exc} at pc 0x{regs.read('pc'):08x} (lr 0x{regs.read('lr'):08x})\n")
-        return 1
-    if not booted:
-        sys.stderr.write("the emulated S32 did not report its heap; its output:\n" + emu.output.decode(errors="replace"))
+        sys.stderr.write(f"\nemulation stopped: {exc}\n")
         return 1
     sys.stderr.write(emu.output.decode(errors="replace"))
+    if not booted:
+        sys.stderr.write(f"the emulated S32 did not report its heap within {BOOT_MS} ms\n")
+        return 1
+    sys.stderr.write(f"booted in {boot_ms} ms of virtual time; then {emu.board.tmc.frames - frames} TMC5130 "
+                     f"datagrams in {AFTER_BOOT_MS} ms\n")
+    for name, reply in (("IDENTITY", identity), ("ANGLEMOVED", angle)):
+        sys.stderr.write(f"legacy {name} read on I2C1 at 0x{JOINT_ADDRESS:02x}: {reply.hex()}\n")
     free = int(HEAP_LINE.search(emu.output).group(1))
     print(f"s32.heap_free_after_boot_kb {free / 1024:.1f}")
+    elf = pathlib.Path(flash).with_name("firmware.elf")
+    if elf.exists():
+        instructions, iterations = main_loop_instructions(emu, elf, ESTIMATE_MS)
+        print(f"s32.main_loop_instructions_estimate {instructions // max(iterations, 1)}")
+        in_interrupt = i2c_interrupt_instructions(emu, "IDENTITY")
+        print(f"s32.i2c_read_instructions_estimate {in_interrupt}")
+        sys.stderr.write(f"estimate (no timing fidelity): {instructions} instructions in {ESTIMATE_MS} ms of "
+                         f"virtual time, {iterations} main-loop iterations (1 kHz would be {ESTIMATE_MS}); at one "
+                         f"instruction a cycle an iteration takes {instructions / max(iterations, 1) / 84:.0f} us "
+                         f"of the 1000 us period; a legacy IDENTITY read (1 byte written, 10 read) runs "
+                         f"{in_interrupt} instructions in the I2C1 event interrupt ({in_interrupt / 84:.0f} us)\n")
     return 0
 
 

@@ -24,6 +24,11 @@ def _on_rp2040(machine):
             and "RP2040" in getattr(sys.implementation, "_machine", ""))
 
 
+def _on_stm32():
+    import sys
+    return sys.platform == "pyboard"
+
+
 def bus_activity_probe(machine, bus):
     """A callable that is true while a transaction is in progress on target `bus`: the RP2040's
     activity bit; elsewhere none (always false: a torn state block is then caught by its CRC)."""
@@ -64,7 +69,7 @@ def join_bus(machine, core, cfg, log, target_pins=True):
         block = board_module("pico").i2c_registers(i2c.bus)
 
     def legacy_adapter(target):
-        return I2CTargetAdapter(core, target, i2c.whole_reply_writes, probe, block)
+        return I2CTargetAdapter(core, target, i2c.whole_reply_writes, probe, block, not _on_stm32())
 
     try:
         return ProtocolSwitch(core, cfg.address, make_target, legacy_adapter,

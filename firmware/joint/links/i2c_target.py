@@ -60,6 +60,7 @@ _S_SEL = const(6)  # the reply the next read gets: a register address, or _SEL_F
 _S_ERR = const(7)  # FLAG_ERROR if the frame the flags answer was rejected, else 0
 _S_WROTE = const(8)  # a write ended since the last read ended (the transaction is counted)
 _S_ADDR = const(9)  # the frame's first byte (its register)
+_S_DRAIN = const(10)  # 1: END_WRITE drains the port's receive buffer (see I2CTargetAdapter)
 _S_WLEN = const(16)  # by register: its command frame length (0: none)
 _S_RSIZE = const(80)  # by register (and _SEL_FLAGS): its reply's length, payload + flags (0: none)
 _S_WORDS = const(145)
@@ -172,7 +173,9 @@ def _handler(s, core, k, flags_of):
             # END_WRITE drains too: rp2 handles a repeated START before the RX data that came with
             # it, so the last bytes of a command can still be in the FIFO (chip/README.md).
             buf = k[length if length < _MAX_FRAME else _MAX_FRAME]
-            got = int(target.readinto(buf))
+            got = 0
+            if st[_S_DRAIN]:
+                got = int(target.readinto(buf))
             if length == 0 and got:
                 st[_S_ADDR] = ptr8(buf)[0]
             length += got
@@ -216,6 +219,10 @@ class I2CTargetAdapter:
     `whole_reply_writes=False` hands `write()` one byte at a time, for ports whose `write()`
     reports 1 even when it queued more (alif).
 
+    `end_write_drains=False` for ports whose every received byte comes with its own WRITE_REQ and
+    whose `readinto()` reads the data register whether or not a byte arrived (stm32: an END_WRITE
+    drain there would count the last byte twice).
+
     `bus_active()` is true while a transaction addressed to the target is in progress (the RP2040's
     activity bit, app.bus_activity_probe). The rp2 driver reads its interrupt status once per
     interrupt: when a STOP is serviced late, after the next transaction's START and first byte, it
@@ -246,7 +253,7 @@ class I2CTargetAdapter:
     after a write-only one is not counted).
     """
 
-    def __init__(self, core, target, whole_reply_writes=True, bus_active=None, rp2040_i2c=0):
+    def __init__(self, core, target, whole_reply_writes=True, bus_active=None, rp2040_i2c=0, end_write_drains=True):
         self._target = target
         frame = bytearray(MAX_FRAME + _CHUNK)
         view = memoryview(frame)
@@ -259,6 +266,7 @@ class I2CTargetAdapter:
             raise ImportError("i2c_target.py: the handler's object table is out of order")
         st = self._state = array("i", [0] * _S_WORDS)
         st[_S_WHOLE] = 1 if whole_reply_writes else 0
+        st[_S_DRAIN] = 1 if end_write_drains else 0
         st[_S_RX_TL] = rp2040_i2c + _IC_RX_TL if rp2040_i2c else 0
         st[_S_SEL] = PING
         for addr in range(_REGISTERS):
