@@ -91,8 +91,10 @@ def test_codes_the_joint_logs_by_number_are_said_in_words() -> None:
 
 
 def test_the_trace_is_captured_to_csv_and_plotted(console: tuple[JointConsole, Lines], j1: Joint,
-                                                  tmp_path) -> None:
+                                                  server: SimServer, tmp_path) -> None:
     joint_console, lines = console
+    # The trace is the original detector's samples; the shipped J1 runs the tracking one.
+    server.bus.joint_at(0x11).core.set_stall_detector("original")
     j1.enable(20, 20)
     j1.enable_stallguard(5)  # samples flow while stall detection runs
     capture = joint_console.start_capture(tmp_path / "trace.csv")
