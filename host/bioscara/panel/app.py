@@ -118,6 +118,7 @@ class PanelApp(App[None]):
         Binding("H", "home_all", "home all"),
         Binding("left", "jog(-1)", "jog -", show=False),
         Binding("right", "jog(1)", "jog +", show=False),
+        Binding("t", "go_to", "go to"),
         Binding("q", "quit", "quit"),
     ]
 
@@ -368,6 +369,13 @@ class PanelApp(App[None]):
             if index < len(names):
                 self.selected = names[index]
                 self.refresh_view()
+
+    def action_go_to(self) -> None:
+        """Into the selected joint's go-to box, from the keyboard (Tab would pass every button
+        before it): the target typed there and Enter move the joint."""
+        self.query_one(f"#{self.selected}-goto", Input).focus()
+        unit = "m" if self.model.arm[self.selected].config.type == "prismatic" else "rad"
+        self.model.say(f"go to: type {self.selected}'s target ({unit}), then Enter")
 
     def action_jog(self, direction: int) -> None:
         aj = self.model.arm[self.selected]
