@@ -30,14 +30,14 @@ ARROW = {"right": b"\x1b[C", "left": b"\x1b[D", "escape": b"\x1b"}
 
 
 class Terminal:
-    """`bioscara ARGV` (by default the panel on the in-process simulator) in a 160x50
-    pseudo-terminal, the leader of its own session as in a terminal window; `shown` is everything
+    """`bioscara ARGV` (by default the panel on the in-process simulator) in a pseudo-terminal 160
+    columns wide, the leader of its own session as in a terminal window; `shown` is everything
     it wrote, escape sequences left out."""
 
-    def __init__(self, *argv: str) -> None:
+    def __init__(self, *argv: str, lines: int = 50) -> None:
         self.pid, self.fd = pty.fork()
         if self.pid == 0:
-            os.environ.update(COLUMNS="160", LINES="50", TERM="xterm-256color")
+            os.environ.update(COLUMNS="160", LINES=str(lines), TERM="xterm-256color")
             os.execv(sys.executable, [sys.executable, "-m", "bioscara.cli",
                                       *(argv or ("--bus", "sim:virtual", "panel"))])
         self.output = b""
@@ -47,19 +47,21 @@ class Terminal:
     def shown(self) -> str:
         return _ESCAPES.sub(b"", self.output).decode(errors="replace")
 
-    def _read(self) -> None:
+    def read(self) -> str:
+        """What the program wrote so far (`shown`), after waiting at most 0.1 s for more."""
         if select.select([self.fd], [], [], 0.1)[0]:
             try:
                 self.output += os.read(self.fd, 65536)
             except OSError:  # the panel ended: its side of the terminal is closed
                 pass
+        return self.shown
 
     def wait_for(self, pattern: str, since: int = 0) -> None:
         """Wait until `pattern` (a regular expression) is on the screen after `since` characters."""
         deadline = time.monotonic() + TIMEOUT_S
         while not re.search(pattern, self.shown[since:]):
             assert time.monotonic() < deadline, (pattern, self.shown[since:][-3000:])
-            self._read()
+            self.read()
 
     def press(self, key: str, then: str) -> None:
         """Press `key` and wait until the screen shows `then`."""
@@ -71,11 +73,11 @@ class Terminal:
         deadline = time.monotonic() + TIMEOUT_S
         while self.status is None:
             assert time.monotonic() < deadline, ("the panel did not end", self.shown[-3000:])
-            self._read()
+            self.read()
             done, status = os.waitpid(self.pid, os.WNOHANG)
             if done:
                 self.status = os.waitstatus_to_exitcode(status)
-        self._read()  # what it said as it ended
+        self.read()  # what it said as it ended
         return self.status
 
     def close_window(self) -> int:
@@ -178,7 +180,7 @@ def test_a_signal_or_a_closed_terminal_stops_the_joint_the_panel_moves(state_dir
         deadline = time.monotonic() + TIMEOUT_S
         while not [float(x) for x in J1_SHOWN.findall(panel.shown[-20000:]) if float(x) > start + 0.5]:
             assert time.monotonic() < deadline, panel.shown[-3000:]
-            panel._read()
+            panel.read()
         since = len(panel.shown)
         if ending == "closed terminal":
             assert panel.close_window() == 128 + signal.SIGHUP

@@ -122,7 +122,7 @@ def test_a_closed_terminal_stops_a_move_midway(state_dir: Path, tmp_path: Path) 
         deadline = time.monotonic() + 30.0
         while not [x for x in re.findall(r"j1 at ([-+]\d\.\d+) rad", move.shown[-2000:]) if float(x) > start + 0.3]:
             assert time.monotonic() < deadline, move.shown[-2000:]
-            move._read()
+            move.read()
         assert move.close_window() == 128 + signal.SIGHUP
     finally:
         move.close()

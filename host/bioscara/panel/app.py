@@ -8,6 +8,7 @@ runs them off the display's thread: a slow or missing joint never freezes the di
 from __future__ import annotations
 
 import math
+import textwrap
 from collections.abc import Callable
 
 from textual import events, on
@@ -221,8 +222,10 @@ class PanelApp(App[None]):
         self._text("#homing-hint", "" if view.homing_control else "Activate the homing controller to start homing.")
         log = self.query_one("#log", Log)
         unseen = min(self.model.said - self._messages_shown, len(self.model.messages))
+        width = max(20, log.scrollable_content_region.width - 1)  # the scroll bar's column
         for message in list(self.model.messages)[len(self.model.messages) - unseen:]:
-            log.write_line(message)
+            # wrapped: a refusal names who commands the arm and how to take over, past the box's width
+            log.write_lines(textwrap.wrap(message, width) or [""])
         self._messages_shown = self.model.said
 
     def _show_state(self, key: str, state: str, action: str | None) -> None:
