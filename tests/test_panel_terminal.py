@@ -194,6 +194,7 @@ def test_a_signal_or_a_closed_terminal_stops_the_joint_the_panel_moves(state_dir
             assert stopped is not None, said[-2000:]
             assert position(Path(config)) == pytest.approx(float(stopped.group(1)), abs=2e-3)
         assert session_members(panel.pid) == [], "a process of the panel outlived it"
+        assert not (state_dir / "arm-sim.json").exists(), "it let go of the arm (commander.py)"
     finally:
         panel.close()
     where = position(Path(config))

@@ -7,9 +7,11 @@ runs them off the display's thread: a slow or missing joint never freezes the di
 
 from __future__ import annotations
 
+import asyncio
 import math
 import textwrap
 from collections.abc import Callable
+from signal import SIG_IGN, Signals, getsignal
 
 from textual import events, on
 from textual.app import App, ComposeResult
@@ -123,9 +125,13 @@ class PanelApp(App[None]):
         Binding("q", "quit", "quit"),
     ]
 
-    def __init__(self, model: PanelModel) -> None:
+    def __init__(self, model: PanelModel, end_on: tuple[Signals, ...] = ()) -> None:
+        """`end_on`: signals that end the panel (the command's: SIGINT, SIGTERM, SIGHUP); the one
+        that did is `ended_by`."""
         super().__init__()
         self.model = model
+        self.end_on = end_on
+        self.ended_by: Signals | None = None
         self.selected = next(iter(model.arm.joints))
         self._messages_shown = 0
         self.plotted: list[str] = []  # the joints the plot draws now (those with values to draw)
@@ -169,6 +175,12 @@ class PanelApp(App[None]):
 
     def on_mount(self) -> None:
         self.sub_title = self.model.arm.bus.describe()
+        # Through the event loop, not an exception raised wherever the main thread is: raised in a
+        # finalizer (asyncio runs many), an exception is printed and dropped, and the panel ran on.
+        loop = asyncio.get_running_loop()
+        for signum in self.end_on:
+            if getsignal(signum) is not SIG_IGN:
+                loop.add_signal_handler(signum, self._end_by, signum)
         table = self.query_one("#joints", DataTable)
         for column, width in _COLUMNS.items():
             table.add_column(column, key=column, width=width)
@@ -178,6 +190,11 @@ class PanelApp(App[None]):
         self.refresh_slow()
         self.set_interval(REFRESH_S, lambda: self._on_timer(self.refresh_view))
         self.set_interval(SLOW_REFRESH_S, lambda: self._on_timer(self.refresh_slow))
+
+    def _end_by(self, signum: Signals) -> None:
+        if self.ended_by is None:
+            self.ended_by = signum
+            self.exit()
 
     def _on_timer(self, refresh: Callable[[], None]) -> None:
         try:
