@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+import re
 from dataclasses import replace
 from pathlib import Path
 
@@ -370,3 +371,35 @@ def test_open_arm_as_a_context_manager_stops_and_disables_on_ctrl_c(config: ArmC
     assert arm.lifecycle is Lifecycle.UNCONFIGURED and not arm["j4"].joint.is_open
     bus.run_for(1.0)
     assert joint.stepper.driver_rpm() == 0.0
+
+
+class SilentOnce:
+    """A motion runner whose host falls silent once, `silence` s of bus time after `after` cycles
+    (a loaded machine, a paused script), then cycles on."""
+
+    def __init__(self, comm: Communicator, bus: SimBus, after: int, silence: float) -> None:
+        self.comm, self.bus, self.after, self.silence = comm, bus, after, silence
+
+    def run_until(self, predicate, timeout: float) -> None:  # type: ignore[no-untyped-def]
+        cycles = 0
+
+        def check() -> bool:
+            nonlocal cycles
+            cycles += 1
+            if cycles == self.after:
+                self.bus.sleep(self.silence)
+            return bool(predicate())
+        self.comm.run_until(check, timeout)
+
+
+def test_homing_that_the_deadman_ends_says_so_with_the_hosts_silence(arm: Arm, comm: Communicator,
+                                                                    bus: SimBus) -> None:
+    """Not "homing ended without reaching the end stop" alone: the joint's deadman, after how long
+    this host was silent, against its timeout."""
+    arm.configure()
+    arm.activate()
+    with pytest.raises(NotHomedError) as ended:
+        motion.home(arm, SilentOnce(comm, bus, after=50, silence=0.3), ["j1"], timeout=60)
+    assert re.fullmatch(r"homing ended without reaching the end stop: j1 \(the joint disabled itself: its deadman, "
+                        r"after 3\d\d ms without traffic from this host \(its timeout is 100 ms\)\)",
+                        ended.value.detail), ended.value.detail

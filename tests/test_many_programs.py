@@ -235,3 +235,79 @@ def test_a_commander_that_ends_while_a_watcher_asks_it_is_no_read_error(tmp_path
         assert state.position_deg != 1.0
     finally:
         bus.close()
+
+
+def _moving_commander(spawn: Spawn, config: str, state_dir: Path,
+                      tmp_path: Path) -> tuple[subprocess.Popen[str], str]:
+    """A shell script that sends j1 from its end stop to +2.5 rad and then holds it for a minute,
+    and its command line, once it commands the arm."""
+    assert _run(spawn, "home", "j1", "--config", config, timeout=120)[0] == 0
+    script = tmp_path / "hold.txt"
+    script.write_text("configure\nactivate\nmode j1 position\nset j1 position 2.5\nwait 60\n")
+    first = spawn("shell", "--script", str(script), "--config", config)
+    assert wait_until(lambda: _commander(state_dir) is not None, timeout=30)
+    return first, f"bioscara shell --script {script} --config {config}"
+
+
+def _stopped_by_the_take_over(first: subprocess.Popen[str]) -> float:
+    """The first commander ended on the SIGTERM of the take-over, its joint stopped: where."""
+    out, err = first.communicate(timeout=30)
+    assert first.returncode == 128 + signal.SIGTERM and "interrupted (SIGTERM)" in err, err
+    stopped = re.search(r"^leaving the shell: stopped j1 at ([-+]\d+\.\d+) rad", err, flags=re.M)
+    assert stopped is not None, err
+    return float(stopped.group(1))
+
+
+def test_a_second_shell_is_refused_by_name_then_takes_over_when_asked(config: str, state_dir: Path,
+                                                                     tmp_path: Path, bioscara: Spawn) -> None:
+    first, program = _moving_commander(bioscara, config, state_dir, tmp_path)
+    script = tmp_path / "to-zero.txt"
+    script.write_text("configure\nactivate\nmode j1 position\nset j1 position 0.0\nwait 1\n")
+    code, out, err = _run(bioscara, "shell", "--script", str(script), "--config", config)
+    assert code == 1 and "Traceback" not in err
+    assert f"the arm on sim: is commanded by pid {first.pid} ({program})" in err
+    assert "--take-over" in err and first.poll() is None, "the refused shell disturbed nothing"
+    code, out, err = _run(bioscara, "shell", "--script", str(script), "--config", config, "--take-over")
+    assert code == 0 and "Traceback" not in err, err
+    taken_at = _stopped_by_the_take_over(first)
+    left = re.search(r"^leaving the shell: stopped j1 at ([-+]\d+\.\d+) rad", err, flags=re.M)
+    assert left is not None, err
+    assert abs(float(left.group(1))) < max(abs(taken_at) - 0.2, 2e-3), "the shell moved j1 toward 0 rad"
+    assert _commander(state_dir) is None, "and let go of the arm as it ended"
+
+
+def _without_breaks(text: str) -> str:
+    return re.sub(r"[\s│]+", "", text)
+
+
+def test_a_second_panel_is_refused_by_name_then_takes_over_when_asked(config: str, state_dir: Path,
+                                                                     tmp_path: Path, bioscara: Spawn) -> None:
+    from tests.test_panel_terminal import Terminal
+
+    first, program = _moving_commander(bioscara, config, state_dir, tmp_path)
+    refused = Terminal("panel", "--config", config, lines=80)  # room in the log for the whole refusal
+    try:
+        refused.wait_for("Configure")
+        since = len(refused.shown)
+        refused.press("a", "configure: the arm on sim: is")
+        said = f"is commanded by pid {first.pid} ({program}) since"
+        # the log wraps the message in its box: compare without the line breaks and the box's sides
+        assert wait_until(lambda: _without_breaks(said) in _without_breaks(refused.read()[since:]), timeout=30)
+        assert _without_breaks("or take over with --take-over (it is stopped)") in _without_breaks(refused.shown)
+        assert first.poll() is None, "the refused panel disturbed nothing"
+        os.write(refused.fd, b"q")
+        assert refused.wait_for_exit() == 0
+    finally:
+        refused.close()
+    panel = Terminal("panel", "--config", config, "--take-over")
+    try:
+        panel.wait_for("Configure")
+        panel.press("a", "configure: done")
+        _stopped_by_the_take_over(first)
+        assert (_commander(state_dir) or {}).get("program", "").startswith("bioscara panel --config"), \
+            "the panel commands the arm now"
+        os.write(panel.fd, b"q")
+        assert panel.wait_for_exit() == 0 and "Traceback" not in panel.shown
+    finally:
+        panel.close()
+    assert _commander(state_dir) is None, "and let go of it as it ended"

@@ -239,7 +239,7 @@ def test_panel_needs_a_terminal_or_web(capsys: pytest.CaptureFixture[str]) -> No
     assert main(["panel", "--rate", "0"]) != 0
 
 
-KEYS = ("a", "g", "p", "h", "H", "1", "2", "3", "4", "left", "right", "tab", "escape")
+KEYS = ("a", "g", "p", "h", "H", "1", "2", "3", "4", "left", "right", "tab", "t", "escape")
 
 
 async def every_key_and_button(app: PanelApp, model: PanelModel, pilot: object) -> None:

@@ -7,6 +7,7 @@ the simulated joint's own firmware flags.
 from __future__ import annotations
 
 import io
+import re
 import struct
 import sys
 import time
@@ -333,6 +334,10 @@ def test_the_shell_keeps_active_joints_alive_and_names_fault_causes(config: ArmC
         bus.sleep(2.0)
         error = console.fails("wait 0.1")
         assert "j4: deadman: the joint stopped and disabled itself" in error, error
+        console.ok("state")  # where a user looks next: the fault and the joint's own cause, with the silence
+        assert any(line.startswith("fault: ") for line in console.out)
+        assert any(re.fullmatch(r"j4: the joint disabled itself: its deadman, after \d+ ms without traffic from "
+                                r"this host \(its timeout is 100 ms\)", line) for line in console.out), console.out
     finally:
         shell.close()
 

@@ -107,6 +107,30 @@ def test_a_signal_stops_a_move_midway_and_says_where(state_dir: Path, tmp_path: 
         stays(Path(config), where)
 
 
+def test_a_closed_terminal_stops_a_move_midway(state_dir: Path, tmp_path: Path) -> None:  # noqa: F811
+    """`bioscara move` in a terminal window that closes (an SSH session that drops): the kernel
+    hangs the session up; the progress drawn in place can no longer be written. The joint stops
+    where it is, not at the target, and stays there."""
+    from tests.test_panel_terminal import Terminal
+
+    config = str(quick_config(tmp_path, watchdog_ms=1000))  # a loaded machine can stall the move's cycle
+    assert bioscara("home", "j1", "--config", config).returncode == 0
+    start, target = position(Path(config)), 2.5
+    move = Terminal("move", "j1", str(target), "--config", config)
+    try:
+        move.wait_for(rf"j1 at ([-+]\d\.\d+) rad, target \+2\.50000 rad")  # the progress, redrawn in place
+        deadline = time.monotonic() + 30.0
+        while not [x for x in re.findall(r"j1 at ([-+]\d\.\d+) rad", move.shown[-2000:]) if float(x) > start + 0.3]:
+            assert time.monotonic() < deadline, move.shown[-2000:]
+            move.read()
+        assert move.close_window() == 128 + signal.SIGHUP
+    finally:
+        move.close()
+    where = position(Path(config))
+    assert start + 0.3 < where < target - 0.1, f"j1 stopped mid-way, not at {where}"
+    stays(Path(config), where)
+
+
 def pipe_into_head(lines: int, *argv: str) -> tuple[int, str, str]:
     """`bioscara ARGV | head -LINES`: bioscara's exit status and stderr, head's output."""
     producer = subprocess.Popen([*BIOSCARA, *argv], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)

@@ -137,6 +137,7 @@ class Joint:
         # Why the joint disabled itself, when it did so without this host asking (None: it did
         # not): its deadman (with this host's silence before), a stall, or a reboot.
         self.disabled_cause: str | None = None
+        self.homing_failure: str | None = None  # why the last homing ended without the end stop
         self._disabling = False  # this host is disabling the joint: NOTENABLED is its own doing
         self._offset_stale = False  # a watched joint was homed (by its commander): read the new offset
         self._commanded_by: object = None  # a watched joint's commander at the last cycle
@@ -526,6 +527,7 @@ class Joint:
                                        "outside 1..250", joint=self.name)
         self._require_enabled()
         self._start_position = None
+        self.homing_failure = None
         if self.homing_range_check is not None and self.is_homed():
             self._start_position = self.get_position()
         self._command(P.HOME, 1 if rpm > 0 else 0, round(abs(rpm)), sensitivity, current)
@@ -541,11 +543,13 @@ class Joint:
         self._homing_refused = False
         if not self.is_homed():
             if self.disabled_cause:
-                raise NotHomedError(f"homing ended, not homed: {self.disabled_cause}", joint=self.name)
-            with self.visit_legacy():  # HOMINGRESULT is not in the v2 state block
-                (outcome,) = self._read(P.register(P.HOMINGRESULT))
-            why = P.HOMING_OUTCOMES[outcome] if 0 < outcome < len(P.HOMING_OUTCOMES) else "the end stop was not reached"
-            raise NotHomedError(f"homing ended, not homed: {why}", joint=self.name)
+                self.homing_failure = self.disabled_cause
+            else:
+                with self.visit_legacy():  # HOMINGRESULT is not in the v2 state block
+                    (outcome,) = self._read(P.register(P.HOMINGRESULT))
+                self.homing_failure = (P.HOMING_OUTCOMES[outcome] if 0 < outcome < len(P.HOMING_OUTCOMES)
+                                       else "the end stop was not reached")
+            raise NotHomedError(f"homing ended, not homed: {self.homing_failure}", joint=self.name)
         if self.homing_range_check is not None:
             self._check_homed_range(self.homing_range_check)
         self.transmission = self.transmission.with_offset(self._homing_offset)

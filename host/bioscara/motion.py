@@ -44,7 +44,10 @@ def home(arm: Arm, runner: Runner, joints: Iterable[str] | None = None,
             arm.switch_modes(stop=[f"{name}/home" for name in names])
     missing = [name for name in names if arm[name].state.home != 1.0]
     if missing:
-        raise NotHomedError(f"homing ended without reaching the end stop: {', '.join(missing)}")
+        # what ended it, as the joint said (its deadman, a stall, a reboot): the log is not where a user looks
+        why = [f"{name} ({arm[name].joint.homing_failure})" if arm[name].joint.homing_failure else name
+               for name in missing]
+        raise NotHomedError(f"homing ended without reaching the end stop: {', '.join(why)}")
 
 
 def move_to(arm: Arm, runner: Runner, targets: Mapping[str, float], tolerance: float = 1e-3,

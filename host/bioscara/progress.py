@@ -7,6 +7,7 @@ Imports rich and the communicator only.
 
 from __future__ import annotations
 
+import contextlib
 import time
 from collections.abc import Callable
 from types import TracebackType
@@ -31,6 +32,7 @@ class Progress:
         self.sample = sample
         self._live: Live | None = None
         self._next = 0.0
+        self._unread = False  # the output went away
 
     def __enter__(self) -> Progress:
         if self.console.is_terminal:
@@ -40,20 +42,28 @@ class Progress:
 
     def __exit__(self, kind: type[BaseException] | None, exc: BaseException | None,
                  traceback: TracebackType | None) -> None:
-        if self._live is not None:
-            self._live.__exit__(kind, exc, traceback)
-            self._live = None
+        live, self._live = self._live, None
+        if live is not None:
+            with contextlib.suppress(OSError):  # the terminal closed: nothing to clear, and the
+                live.__exit__(kind, exc, traceback)  # exception that ends the work stays the one
 
     def show(self) -> None:
         if self.sample is not None:
             self.sample()
-        if self._live is not None:
-            self._live.update(self.render(), refresh=True)
+        if self._unread:
             return
-        now = time.monotonic()
-        if now >= self._next:
-            self._next = now + self.every
-            print(self.line(), file=self.console.file, flush=True)
+        try:
+            if self._live is not None:
+                self._live.update(self.render(), refresh=True)
+                return
+            now = time.monotonic()
+            if now >= self._next:
+                self._next = now + self.every
+                print(self.line(), file=self.console.file, flush=True)
+        except OSError:
+            # Nobody reads any more: the terminal closed (EIO; its SIGHUP stops the work) or the
+            # reader left. The work goes on, unshown, rather than ending with its joint moving.
+            self._unread = True
 
 
 class ProgressRunner:

@@ -105,7 +105,12 @@ class Session:
             self.console.print(report.for_terminal(human if human is not None else data, self.console.is_terminal))
 
     def err(self, message: str) -> None:
-        Console(stderr=True, soft_wrap=True).print(message, style="red", markup=False, highlight=False)
+        """One message on stderr; dropped when nobody can read it any more (the terminal closed:
+        EIO; the reader left: EPIPE), so the stop and the release that follow still run."""
+        try:
+            Console(stderr=True, soft_wrap=True).print(message, style="red", markup=False, highlight=False)
+        except OSError:
+            pass
 
     def fail(self, exc: BioscaraError | OSError, status: int) -> None:
         """Report the error that ends the command: one line on stderr, `error: [JOINT: ]what`."""

@@ -60,12 +60,22 @@ def run(args: argparse.Namespace, session: Session) -> int:
 
     model = open_model(session, args.rate)
     session.drives(model.arm)
+    app = PanelApp(model, end_on=interruption.SIGNALS)
+    handlers = {signum: signal.getsignal(signum) for signum in interruption.SIGNALS}
     try:
-        PanelApp(model).run()
+        app.run()
     finally:
-        if model.arm.lifecycle is Lifecycle.ACTIVE:
-            interruption.stop_arms([model.arm], session.err)
-        model.close()
+        for signum, handler in handlers.items():  # Textual's event loop left the defaults
+            if handler is not None:
+                signal.signal(signum, handler)
+        try:
+            if app.ended_by is not None:
+                # to the command's own handler: Interrupted here, and any further signal held off
+                signal.raise_signal(app.ended_by)
+        finally:
+            if model.arm.lifecycle is Lifecycle.ACTIVE:
+                interruption.stop_arms([model.arm], session.err)
+            model.close()
     return 0
 
 

@@ -7,8 +7,11 @@ runs them off the display's thread: a slow or missing joint never freezes the di
 
 from __future__ import annotations
 
+import asyncio
 import math
+import textwrap
 from collections.abc import Callable
+from signal import SIG_IGN, Signals, getsignal
 
 from textual import events, on
 from textual.app import App, ComposeResult
@@ -118,12 +121,17 @@ class PanelApp(App[None]):
         Binding("H", "home_all", "home all"),
         Binding("left", "jog(-1)", "jog -", show=False),
         Binding("right", "jog(1)", "jog +", show=False),
+        Binding("t", "go_to", "go to"),
         Binding("q", "quit", "quit"),
     ]
 
-    def __init__(self, model: PanelModel) -> None:
+    def __init__(self, model: PanelModel, end_on: tuple[Signals, ...] = ()) -> None:
+        """`end_on`: signals that end the panel (the command's: SIGINT, SIGTERM, SIGHUP); the one
+        that did is `ended_by`."""
         super().__init__()
         self.model = model
+        self.end_on = end_on
+        self.ended_by: Signals | None = None
         self.selected = next(iter(model.arm.joints))
         self._messages_shown = 0
         self.plotted: list[str] = []  # the joints the plot draws now (those with values to draw)
@@ -167,6 +175,12 @@ class PanelApp(App[None]):
 
     def on_mount(self) -> None:
         self.sub_title = self.model.arm.bus.describe()
+        # Through the event loop, not an exception raised wherever the main thread is: raised in a
+        # finalizer (asyncio runs many), an exception is printed and dropped, and the panel ran on.
+        loop = asyncio.get_running_loop()
+        for signum in self.end_on:
+            if getsignal(signum) is not SIG_IGN:
+                loop.add_signal_handler(signum, self._end_by, signum)
         table = self.query_one("#joints", DataTable)
         for column, width in _COLUMNS.items():
             table.add_column(column, key=column, width=width)
@@ -176,6 +190,11 @@ class PanelApp(App[None]):
         self.refresh_slow()
         self.set_interval(REFRESH_S, lambda: self._on_timer(self.refresh_view))
         self.set_interval(SLOW_REFRESH_S, lambda: self._on_timer(self.refresh_slow))
+
+    def _end_by(self, signum: Signals) -> None:
+        if self.ended_by is None:
+            self.ended_by = signum
+            self.exit()
 
     def _on_timer(self, refresh: Callable[[], None]) -> None:
         try:
@@ -220,8 +239,10 @@ class PanelApp(App[None]):
         self._text("#homing-hint", "" if view.homing_control else "Activate the homing controller to start homing.")
         log = self.query_one("#log", Log)
         unseen = min(self.model.said - self._messages_shown, len(self.model.messages))
+        width = max(20, log.scrollable_content_region.width - 1)  # the scroll bar's column
         for message in list(self.model.messages)[len(self.model.messages) - unseen:]:
-            log.write_line(message)
+            # wrapped: a refusal names who commands the arm and how to take over, past the box's width
+            log.write_lines(textwrap.wrap(message, width) or [""])
         self._messages_shown = self.model.said
 
     def _show_state(self, key: str, state: str, action: str | None) -> None:
@@ -368,6 +389,13 @@ class PanelApp(App[None]):
             if index < len(names):
                 self.selected = names[index]
                 self.refresh_view()
+
+    def action_go_to(self) -> None:
+        """Into the selected joint's go-to box, from the keyboard (Tab would pass every button
+        before it): the target typed there and Enter move the joint."""
+        self.query_one(f"#{self.selected}-goto", Input).focus()
+        unit = "m" if self.model.arm[self.selected].config.type == "prismatic" else "rad"
+        self.model.say(f"go to: type {self.selected}'s target ({unit}), then Enter")
 
     def action_jog(self, direction: int) -> None:
         aj = self.model.arm[self.selected]
