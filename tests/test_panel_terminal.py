@@ -9,11 +9,8 @@ shows, within a timeout.
 from __future__ import annotations
 
 import os
-import pty
 import re
-import select
 import signal
-import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -21,86 +18,8 @@ from pathlib import Path
 import pytest
 
 from bioscara import interruption
-from tests.doc_blocks import _ESCAPES
-from tests.test_sim_service import quick_config, state_dir  # noqa: F401 (a fixture)
-from tests.test_user_sessions import bioscara, position, stays
-
-TIMEOUT_S = 30.0  # the panel starts in about 2 s on an idle machine; 2 cores shared by many runs
-ARROW = {"right": b"\x1b[C", "left": b"\x1b[D", "escape": b"\x1b"}
-
-
-class Terminal:
-    """`bioscara ARGV` (by default the panel on the in-process simulator) in a pseudo-terminal 160
-    columns wide, the leader of its own session as in a terminal window; `shown` is everything
-    it wrote, escape sequences left out."""
-
-    def __init__(self, *argv: str, lines: int = 50) -> None:
-        self.pid, self.fd = pty.fork()
-        if self.pid == 0:
-            os.environ.update(COLUMNS="160", LINES=str(lines), TERM="xterm-256color")
-            os.execv(sys.executable, [sys.executable, "-m", "bioscara.cli",
-                                      *(argv or ("--bus", "sim:virtual", "panel"))])
-        self.output = b""
-        self.status: int | None = None
-
-    @property
-    def shown(self) -> str:
-        return _ESCAPES.sub(b"", self.output).decode(errors="replace")
-
-    def read(self) -> str:
-        """What the program wrote so far (`shown`), after waiting at most 0.1 s for more."""
-        if select.select([self.fd], [], [], 0.1)[0]:
-            try:
-                self.output += os.read(self.fd, 65536)
-            except OSError:  # the panel ended: its side of the terminal is closed
-                pass
-        return self.shown
-
-    def wait_for(self, pattern: str, since: int = 0) -> None:
-        """Wait until `pattern` (a regular expression) is on the screen after `since` characters."""
-        deadline = time.monotonic() + TIMEOUT_S
-        while not re.search(pattern, self.shown[since:]):
-            assert time.monotonic() < deadline, (pattern, self.shown[since:][-3000:])
-            self.read()
-
-    def press(self, key: str, then: str) -> None:
-        """Press `key` and wait until the screen shows `then`."""
-        since = len(self.shown)
-        os.write(self.fd, ARROW.get(key, key.encode()))
-        self.wait_for(then, since)
-
-    def wait_for_exit(self) -> int:
-        deadline = time.monotonic() + TIMEOUT_S
-        while self.status is None:
-            assert time.monotonic() < deadline, ("the panel did not end", self.shown[-3000:])
-            self.read()
-            done, status = os.waitpid(self.pid, os.WNOHANG)
-            if done:
-                self.status = os.waitstatus_to_exitcode(status)
-        self.read()  # what it said as it ended
-        return self.status
-
-    def close_window(self) -> int:
-        """Close the terminal, as its window closes: the kernel hangs the session up (SIGHUP to its
-        leader); the exit status once the program has ended."""
-        os.close(self.fd)
-        self.fd = -1
-        deadline = time.monotonic() + TIMEOUT_S
-        while self.status is None:
-            assert time.monotonic() < deadline, "the panel did not end when its terminal closed"
-            done, status = os.waitpid(self.pid, os.WNOHANG)
-            if done:
-                self.status = os.waitstatus_to_exitcode(status)
-            else:
-                time.sleep(0.05)
-        return self.status
-
-    def close(self) -> None:
-        if self.status is None:
-            os.kill(self.pid, signal.SIGKILL)
-            os.waitpid(self.pid, 0)
-        if self.fd >= 0:
-            os.close(self.fd)
+from sim_session import quick_config, state_dir  # noqa: F401 (a fixture)
+from tests.user_programs import TIMEOUT_S, Terminal, bioscara, position, stays
 
 
 @pytest.fixture

@@ -5,74 +5,17 @@ signalled and piped as a person or a supervisor would. Each waits on what the pr
 
 from __future__ import annotations
 
-import contextlib
-import json
 import re
-import selectors
 import signal
 import subprocess
-import sys
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
-from tests.test_sim_service import quick_config, state_dir  # noqa: F401 (a fixture)
-
-BIOSCARA = [sys.executable, "-m", "bioscara.cli"]
-PROGRESS = re.compile(r"^j1 at ([-+][0-9.]+) rad, target ([-+][0-9.]+) rad")
-STOPPED = re.compile(r"^stopped j1 at ([-+][0-9.]+) rad$", re.M)
-
-
-def bioscara(*argv: str, timeout: float = 60.0) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([*BIOSCARA, *argv], capture_output=True, text=True, timeout=timeout)
-
-
-@contextlib.contextmanager
-def running(*argv: str) -> Iterator[subprocess.Popen[str]]:
-    """`bioscara ARGV` in the background; killed at the end if a failed assertion left it running."""
-    # SIGINT as a terminal delivers it, even when pytest runs as a background job (which ignores it)
-    process = subprocess.Popen([*BIOSCARA, *argv], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                               preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
-    try:
-        yield process
-    finally:
-        if process.poll() is None:
-            process.kill()
-            process.communicate()
-
-
-def wait_for_line(stream: object, pattern: re.Pattern[str], timeout: float) -> tuple[re.Match[str] | None, list[str]]:
-    """Read lines until one matches `pattern` (None after `timeout` s or at the end of the stream)."""
-    seen: list[str] = []
-    deadline = time.monotonic() + timeout
-    with selectors.DefaultSelector() as selector:
-        selector.register(stream, selectors.EVENT_READ)  # type: ignore[arg-type]
-        while time.monotonic() < deadline:
-            if not selector.select(deadline - time.monotonic()):
-                break
-            line = stream.readline()  # type: ignore[attr-defined]
-            if not line:
-                break
-            seen.append(line.rstrip("\n"))
-            match = pattern.match(line)
-            if match:
-                return match, seen
-    return None, seen
-
-
-def position(config: Path) -> float:
-    result = bioscara("info", "j1", "--json", "--config", str(config))
-    assert result.returncode == 0, result.stderr
-    return float(json.loads(result.stdout)["position"])
-
-
-def stays(config: Path, where: float) -> None:
-    """Where the command said j1 stopped is where it stays: no change over the next second of reads."""
-    deadline = time.monotonic() + 1.0
-    while time.monotonic() < deadline:
-        assert abs(position(config) - where) < 2e-3
+from sim_session import quick_config, state_dir  # noqa: F401 (a fixture)
+from tests.user_programs import (BIOSCARA, PROGRESS, STOPPED, Terminal, bioscara, position, running, stays,
+                                 wait_for_line)
 
 
 @pytest.mark.parametrize("signals", [(signal.SIGINT, signal.SIGTERM, signal.SIGHUP)])
@@ -111,7 +54,6 @@ def test_a_closed_terminal_stops_a_move_midway(state_dir: Path, tmp_path: Path) 
     """`bioscara move` in a terminal window that closes (an SSH session that drops): the kernel
     hangs the session up; the progress drawn in place can no longer be written. The joint stops
     where it is, not at the target, and stays there."""
-    from tests.test_panel_terminal import Terminal
 
     config = str(quick_config(tmp_path, watchdog_ms=1000))  # a loaded machine can stall the move's cycle
     assert bioscara("home", "j1", "--config", config).returncode == 0
