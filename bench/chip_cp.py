@@ -22,6 +22,7 @@ import statistics
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -58,7 +59,9 @@ def _read_console(console, until: bytes, timeout: float, seen: bytes = b"") -> b
     return seen
 
 
-def scl_figures(bus: JointBusClient) -> dict[str, float]:
+def scl_figures(bus: JointBusClient, drain: Callable[[], object]) -> dict[str, float]:
+    """`drain()` after each transaction reads what the joint printed: CircuitPython's console
+    output waits, and the loop with it, once the host stops reading the USB serial port."""
     figures: dict[str, float] = {}
     failed = wrong = 0
     for khz in SPEEDS_KHZ:
@@ -69,6 +72,7 @@ def scl_figures(bus: JointBusClient) -> dict[str, float]:
             mine, first = [], None
             for i in range(SAMPLES):
                 t = bus.transfer(0x11, write, read_len, gap_us=1000 + i * PHASE_STEP_US)
+                drain()
                 first = t.data if first is None else first
                 if not t.ack or t.timed_out:
                     failed += 1
@@ -104,7 +108,7 @@ def circuitpython_figures() -> dict[str, float]:
             bus = JointBusClient(pico)
             if not enable(bus):
                 raise RuntimeError("the CircuitPython joint did not enable (SETUP)")
-            figures.update(scl_figures(bus))
+            figures.update(scl_figures(bus, lambda: console.read(console.in_waiting)))
             for name, value in figures.items():  # partial figures survive a later failure
                 print(f"{name} {value:g}", file=sys.stderr)
             host_cycle(pico)
