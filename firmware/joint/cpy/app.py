@@ -5,8 +5,11 @@ polled by the loop (cp_target.py).
 The loop serves the bus before and after the core's iteration and while it waits for the next
 millisecond tick (supervisor.ticks_ms: a small int, where time.monotonic_ns allocates a long int
 every call), so the host waits at most about one core iteration for a reply. The garbage
-collector is the loop's: automatic collection is off, and the heap is collected once the bus has
-been quiet for a while (hosts poll in bursts) after `every` iterations, at once after twice that.
+collector is the loop's: the heap is collected once the bus has been quiet for a while (hosts poll
+in bursts) after `every` iterations, at once after twice that. Automatic collection stays on as
+the safety net (with no threshold set it runs only when an allocation finds no room; gc.disable
+made that a MemoryError, which ended the loop in a fast move once the loop allocated less at rest
+than moving).
 `every` is set at the start from the allocation of the first CALIBRATE iterations, so that two
 periods use at most half the heap free after a collection (gc.mem_free walks the whole heap, about
 as long as a core iteration: it is read at the start only). Those iterations allocate more than
@@ -176,7 +179,6 @@ def run(config_path=CONFIG_FILE, meter_every=0):
     ticks_ms = supervisor.ticks_ms
     meter = LoopMeter(meter_every, gc) if meter_every > 0 else None
     gc.collect()
-    gc.disable()
     if meter is not None:
         meter.base = gc.mem_alloc()
     log.info("CircuitPython joint: %d bytes of heap free" % gc.mem_free())
