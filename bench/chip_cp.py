@@ -3,26 +3,30 @@
 the joint bus, every figure in emulated time.
 
 * `chip.cp.heap_free_after_boot`: bytes of heap free when the loop starts (after a collection);
-* `chip.cp.scl_held_us.<kHz>.{median,p99,max}`: SCL held by the joint per register transaction
+* `chip.cp.scl_held_us.<kHz>.{median,p99,max}`: SCL held by the joint as flashed (no meter in
+  its loop: a report, every METER_ITERATIONS iterations, held SCL 18-24 ms) per register transaction
   as the original host makes it (REGISTERS, SAMPLES transactions each, gaps sweeping the loop's
   1 ms phase), and `chip.cp.scl_held_us.<kHz>.<REGISTER>` each register's median;
   `chip.cp.failed_transactions` counts NAKs and stretch timeouts, `chip.cp.wrong_replies` replies
   of the registers that do not change at rest (STATIC) that differ from their first reply;
-* with the original host cycling at 100 Hz in the background (chip_bus.host_cycle), the loop's own
-  figures (firmware/joint/cpy/app.py LoopMeter, over METER_ITERATIONS iterations):
+* on a second boot, enabled, with the original host cycling at 100 Hz in the background
+  (chip_bus.host_cycle: its SETRPM turns the motor), the loop's own figures
+  (firmware/joint/cpy/app.py LoopMeter, over METER_ITERATIONS iterations):
   `chip.cp.loop_hz`, `chip.cp.iteration_us.{median,p99,max}` (the work before the wait for the
   next tick), `chip.cp.alloc_bytes_per_iteration`, `chip.cp.collections_per_s`,
-  `chip.cp.collect_us.{mean,max}`. The meter reads the microsecond clock twice an iteration,
-  which allocates on CircuitPython: a few bytes of the allocation figure are its own.
+  `chip.cp.collect_us.{mean,max}` (the meter's own clock reads are taken off the allocation).
 """
 
 from __future__ import annotations
 
+import contextlib
 import statistics
 import sys
 import tempfile
 import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "bench")]
@@ -58,7 +62,9 @@ def _read_console(console, until: bytes, timeout: float, seen: bytes = b"") -> b
     return seen
 
 
-def scl_figures(bus: JointBusClient) -> dict[str, float]:
+def scl_figures(bus: JointBusClient, drain: Callable[[], object]) -> dict[str, float]:
+    """`drain()` after each transaction reads what the joint printed: CircuitPython's console
+    output waits, and the loop with it, once the host stops reading the USB serial port."""
     figures: dict[str, float] = {}
     failed = wrong = 0
     for khz in SPEEDS_KHZ:
@@ -69,6 +75,7 @@ def scl_figures(bus: JointBusClient) -> dict[str, float]:
             mine, first = [], None
             for i in range(SAMPLES):
                 t = bus.transfer(0x11, write, read_len, gap_us=1000 + i * PHASE_STEP_US)
+                drain()
                 first = t.data if first is None else first
                 if not t.ack or t.timed_out:
                     failed += 1
@@ -86,34 +93,46 @@ def scl_figures(bus: JointBusClient) -> dict[str, float]:
     return figures
 
 
-def circuitpython_figures() -> dict[str, float]:
+@contextlib.contextmanager
+def _joint(meter_every: int) -> Iterator[tuple[EmulatedPico, Any, bytes]]:
+    """J1 booted from the flashed image (its loop metered when `meter_every` > 0): the pico, its
+    console and what the console printed up to the loop's start."""
     import serial
 
     files = dict(circuitpy.build_image("J1").files)
-    files[circuitpy.CODE_PATH] = bench_code(METER_ITERATIONS)
-    figures: dict[str, float] = {}
+    if meter_every:
+        files[circuitpy.CODE_PATH] = bench_code(meter_every)
     with tempfile.TemporaryDirectory() as directory:
         image = Path(directory) / "circuitpy.img"
         image.write_bytes(fsimage.fat_image(files))
         plugins = [JOINT_DEVICES_PLUGIN, joint_bus_plugin(khz=400)]
         with EmulatedPico(image, runtime="circuitpython", plugins=plugins) as pico, \
                 serial.Serial(pico.port(), timeout=0.2) as console:
-            seen = _read_console(console, b"bytes of heap free", 600)
-            line = seen.split(b"CircuitPython joint: ", 1)[1].split(b" bytes", 1)[0]
-            figures["chip.cp.heap_free_after_boot"] = int(line)
-            bus = JointBusClient(pico)
-            if not enable(bus):
-                raise RuntimeError("the CircuitPython joint did not enable (SETUP)")
-            figures.update(scl_figures(bus))
-            for name, value in figures.items():  # partial figures survive a later failure
-                print(f"{name} {value:g}", file=sys.stderr)
-            host_cycle(pico)
-            # The first report may cover the SCL phase; the second is the host's cycle alone.
-            seen = _read_console(console, b"cp.heap.free", 900)
-            if b"cp.heap.free" not in seen:
-                raise RuntimeError("the CircuitPython joint's loop reported no figures")
-            seen = _read_console(console, b"cp.heap.free", 900, seen.rsplit(b"cp.heap.free", 1)[1])
-            report = seen.decode(errors="replace")
+            yield pico, console, _read_console(console, b"collecting every", 600)
+
+
+def circuitpython_figures() -> dict[str, float]:
+    figures: dict[str, float] = {}
+    with _joint(0) as (pico, console, seen):  # the joint as flashed: no meter in its loop
+        line = seen.split(b"CircuitPython joint: ", 1)[1].split(b" bytes", 1)[0]
+        figures["chip.cp.heap_free_after_boot"] = int(line)
+        bus = JointBusClient(pico)
+        if not enable(bus):
+            raise RuntimeError("the CircuitPython joint did not enable (SETUP)")
+        figures.update(scl_figures(bus, lambda: console.read(console.in_waiting)))
+    for name, value in figures.items():  # partial figures survive a later failure
+        print(f"{name} {value:g}", file=sys.stderr)
+    with _joint(METER_ITERATIONS) as (pico, console, _):
+        bus = JointBusClient(pico)
+        if not enable(bus):
+            raise RuntimeError("the CircuitPython joint did not enable (SETUP)")
+        host_cycle(pico)
+        # The first report may cover the enabling; the second is the host's cycle alone.
+        seen = _read_console(console, b"cp.heap.free", 900)
+        if b"cp.heap.free" not in seen:
+            raise RuntimeError("the CircuitPython joint's loop reported no figures")
+        seen = _read_console(console, b"cp.heap.free", 900, seen.rsplit(b"cp.heap.free", 1)[1])
+        report = seen.decode(errors="replace")
     names = {"cp.loop.hz": "chip.cp.loop_hz", "cp.loop.iteration_us.median": "chip.cp.iteration_us.median",
              "cp.loop.iteration_us.p99": "chip.cp.iteration_us.p99", "cp.loop.iteration_us.max": "chip.cp.iteration_us.max",
              "cp.loop.alloc_bytes_per_iteration": "chip.cp.alloc_bytes_per_iteration",

@@ -6,7 +6,9 @@ The image is the firmware files of the board manifest `boards/pico_circuitpython
 and the manifest's MAIN (`cpy/board_code.py`) as `/code.py`, which CircuitPython runs at boot. CircuitPython's compiler rejects
 `@micropython.native` and `@micropython.viper` ("SyntaxError: invalid micropython decorator":
 the Pico build has no native emitter), so each such line becomes a comment of the same line: the
-same code then runs as bytecode, as it does under CPython in the tests.
+same code then runs as bytecode, as it does under CPython in the tests. The viper kernels' sign
+extension of their state words, `((w + m) & k) - m` with m = 2**31, goes too (see
+`circuitpython_source`): the identity in bytecode, but long ints on CircuitPython.
 
 The package is precompiled, as for MicroPython: compiling its 270 KB of source on the board at
 boot ran out of heap (CircuitPython leaves about 160 KB) and took seconds. CircuitPython 10 loads
@@ -42,14 +44,25 @@ CODE_PATH = "/code.py"
 CONFIG_PATH = flash.CONFIG_PATH
 BOOT_OUT = "boot_out.txt"  # CircuitPython writes it at every boot: "Adafruit CircuitPython 10.2.1 on ..."
 _EMITTER = re.compile(rb"^([ \t]*)@micropython\.(native|viper)[ \t]*$", re.MULTILINE)
+# Viper loads an int32 array word zero-extended on 64-bit ports, so the kernels read a word w as
+# ((w + m) & k) - m, m = 2**31 and k = 2**32 - 1 built at run time (tickramp.run_ramp). In bytecode
+# the word comes signed already and the idiom is the identity; on CircuitPython (31-bit small ints)
+# m and k are long ints and every use allocated three: 30 bytes and 55 us on the chip, 3 KB a loop
+# iteration in all.
+_SIGN_MASKS = re.compile(rb"^([ \t]*)m = 1\n\1m <<= 31\n\1k = m \+ m - 1\n", re.MULTILINE)
+_SIGN_EXTENDED = re.compile(rb"\(\((\w+\[[^\[\]()]+\]) \+ m\) & k\) - m")
 MANIFEST = "pico_circuitpython"  # bioscara.firmware.boards.pico_circuitpython
 CIRCUITPYTHON_MPY = 6  # CircuitPython 10: sys.implementation._mpy == 6 | 3 << 8, bytecode only
 SMALL_INT_BITS = 31  # the RP2040 build's
 
 
 def circuitpython_source(source: bytes) -> bytes:
-    """`source` with each `@micropython.native`/`@micropython.viper` line made a comment."""
-    return _EMITTER.sub(rb"\1# @micropython.\2 (bytecode on CircuitPython)", source)
+    """`source` for CircuitPython's bytecode: each `@micropython.native`/`@micropython.viper` line
+    made a comment, and each word read sign-extended, `((w + m) & k) - m`, read as `w` with the
+    lines that build m and k made a comment and two blank lines (line numbers stay)."""
+    source = _EMITTER.sub(rb"\1# @micropython.\2 (bytecode on CircuitPython)", source)
+    source = _SIGN_MASKS.sub(rb"\1# m, k: sign extension, the identity in bytecode\n\n\n", source)
+    return _SIGN_EXTENDED.sub(rb"\1", source)
 
 
 def build_image(joint: str, config: tuple[bytes, firmware_config.JointConfig] | None = None) -> flash.Image:

@@ -5,13 +5,17 @@ polled by the loop (cp_target.py).
 The loop serves the bus before and after the core's iteration and while it waits for the next
 millisecond tick (supervisor.ticks_ms: a small int, where time.monotonic_ns allocates a long int
 every call), so the host waits at most about one core iteration for a reply. The garbage
-collector is the loop's: automatic collection is off, and the heap is collected once the bus has
-been quiet for a while (hosts poll in bursts) after `every` iterations, at once after twice that.
+collector is the loop's: the heap is collected once the bus has been quiet for a while (hosts poll
+in bursts) after `every` iterations, at once after twice that. Automatic collection stays on as
+the safety net (with no threshold set it runs only when an allocation finds no room; gc.disable
+made that a MemoryError, which ended the loop in a fast move once the loop allocated less at rest
+than moving).
 `every` is set at the start from the allocation of the first CALIBRATE iterations, so that two
 periods use at most half the heap free after a collection (gc.mem_free walks the whole heap, about
-as long as a core iteration: it is read at the start only).
+as long as a core iteration: it is read at the start only). Those iterations allocate more than
+later ones (each path's first calls), which leaves room for the bus's requests (an object each).
 CircuitPython lacks what MicroPython gives the core (native and viper code, time.ticks_*): the
-same core runs as bytecode on the CPython clock of clock.py (docs/circuitpython.md has the costs).
+same core runs as bytecode on cpy/clock.py's small-int clock (docs/circuitpython.md has the costs).
 """
 
 from .. import app as mp_app
@@ -21,28 +25,32 @@ from .. import startup
 from ..links.cp_target import CircuitPythonTargetAdapter
 from ..console.debug import DebugConsole
 from ..config.settings import CONFIG_FILE
+from .clock import TICKS_PERIOD, TickClock
 
 SLOW_EVERY_MASK = 3  # the console: every 4th iteration
 QUIET_MS = 3  # a collection waits for this many millisecond ticks without a request ...
-CALIBRATE = 8  # iterations whose allocation sets how often the loop collects
+CALIBRATE = 64  # iterations whose allocation sets how often the loop collects
 HEAP_SHARE = 4  # ... `every` iterations use at most this share of the free heap (forced at 2x)
-TICKS_MASK = 0x1FFFFFFF  # supervisor.ticks_ms wraps at 2**29
+TICKS_MASK = TICKS_PERIOD - 1
 PROTOCOL_V2 = 2  # protocol_v2.PROTOCOL_V2, without loading the v2 spec
 
 
-def build_motor(cfg):
+def build_motor(cfg, clock):
     if cfg.motor.get("backend") == "pico":
         from ..pico.motor import PicoStepper
         from .hardware import build_stepper
-        return build_stepper(PicoStepper, cfg.motor, None)
+        return build_stepper(PicoStepper, cfg.motor, clock)
     raise ValueError("motor backend %r cannot run on a board" % cfg.motor.get("backend"))
 
 
 def boot(config_path=CONFIG_FILE):
     """startup.boot on CircuitPython: the controller built and its boot task run to its end."""
     import time
+    import supervisor
 
-    core, cfg, log = startup.build(None, config_path, motor_builder=build_motor)
+    clock = TickClock(supervisor.ticks_ms)
+    core, cfg, log = startup.build(None, config_path, clock,
+                                   motor_builder=lambda cfg: build_motor(cfg, clock))
     while not core.ready:
         core.service()
         time.sleep(0.001)
@@ -94,11 +102,13 @@ class SerialConsole:
 class LoopMeter:
     """Figures of the running loop for the benchmark: iteration times (us, the work before the
     wait), collections and their times; `report()` prints them as `name value` lines and starts
-    over. It reads the microsecond clock, which allocates on CircuitPython: a few bytes more per
-    iteration than the joint without it."""
+    over. Its microsecond clock is time.monotonic_ns (the joint's clock counts whole
+    milliseconds), a long int a read: the bytes a read allocates, measured here, are taken off the
+    allocation figure, which is then the joint's own."""
 
-    def __init__(self, every):
+    def __init__(self, every, gc):
         from array import array
+        import time
 
         self.every = every
         self.times = array("H", bytes(2 * every))
@@ -106,29 +116,44 @@ class LoopMeter:
         self.collections = 0
         self.collect_us = 0
         self.collect_max_us = 0
-        self.allocated = 0  # bytes allocated since the last report
+        self.allocated = 0  # bytes allocated since the last report, less the clock's
         self.base = 0  # gc.mem_alloc() after the last collection or report
+        self._ns = time.monotonic_ns
+        self.reads = 0
+        gc.collect()
+        before = gc.mem_alloc()
+        for _ in range(8):
+            self.now_us()
+        self.read_bytes = (gc.mem_alloc() - before) // 8
+        self.started = self.now_us()
+        self.reads = 0  # those before run() sets `base`
+
+    def now_us(self):
+        self.reads += 1
+        return self._ns() // 1000
 
     def add(self, spent):
         self.times[self.count] = spent if spent < 65535 else 65535
         self.count += 1
 
-    def collect(self, gc, ticks_us):
+    def collect(self, gc):
         self.allocated += gc.mem_alloc() - self.base
-        start = ticks_us()
+        start = self._ns()  # outside the window: not counted in `reads`
         gc.collect()
-        spent = ticks_us() - start
+        spent = (self._ns() - start) // 1000
         self.base = gc.mem_alloc()
         self.collections += 1
         self.collect_us += spent
         if spent > self.collect_max_us:
             self.collect_max_us = spent
 
-    def report(self, gc, seconds):
+    def report(self, gc):
+        now = self.now_us()
+        seconds = (now - self.started) / 1e6
+        self.started = now
         times = sorted(self.times)
         n = len(times)
-        self.allocated += gc.mem_alloc() - self.base
-        self.base = gc.mem_alloc()
+        self.allocated += gc.mem_alloc() - self.base - self.reads * self.read_bytes
         print("cp.loop.alloc_bytes_per_iteration %d" % (self.allocated // n))
         print("cp.loop.hz %.1f" % (n / seconds))
         print("cp.loop.iteration_us.median %d" % times[n // 2])
@@ -139,6 +164,8 @@ class LoopMeter:
         print("cp.gc.collect_us.max %d" % self.collect_max_us)
         print("cp.heap.free %d" % gc.mem_free())
         self.count = self.collections = self.collect_us = self.collect_max_us = self.allocated = 0
+        self.reads = 0
+        self.base = gc.mem_alloc()  # after the report's own strings
 
 
 def run(config_path=CONFIG_FILE, meter_every=0):
@@ -153,24 +180,21 @@ def run(config_path=CONFIG_FILE, meter_every=0):
     log.set_writer(console.write)
     debug = DebugConsole(core, console.read, console.write)
     ticks_ms = supervisor.ticks_ms
-    ticks_us = core.clock.ticks_us
-    meter = LoopMeter(meter_every) if meter_every > 0 else None
+    meter = LoopMeter(meter_every, gc) if meter_every > 0 else None
     gc.collect()
-    gc.disable()
     if meter is not None:
         meter.base = gc.mem_alloc()
     log.info("CircuitPython joint: %d bytes of heap free" % gc.mem_free())
     serve = link.poll if link is not None else _nothing
     turn = 0
     quiet_since = ticks_ms()
-    started = ticks_us()
     every = 0  # iterations between collections: set after CALIBRATE iterations
     since = 0
     free = gc.mem_free()
     try:
         while True:
             tick = ticks_ms()
-            start = ticks_us() if meter is not None else 0
+            start = meter.now_us() if meter is not None else 0
             while serve():
                 quiet_since = tick
             core.service()
@@ -185,7 +209,7 @@ def run(config_path=CONFIG_FILE, meter_every=0):
                 except Exception as exc:  # the console must never end the control loop
                     log.error("debug console: %r" % (exc,))
             if meter is not None:
-                meter.add(ticks_us() - start)
+                meter.add(meter.now_us() - start)
             since += 1
             if not every:
                 if since == CALIBRATE:
@@ -198,11 +222,9 @@ def run(config_path=CONFIG_FILE, meter_every=0):
                 if meter is None:
                     gc.collect()
                 else:
-                    meter.collect(gc, ticks_us)
+                    meter.collect(gc)
             if meter is not None and meter.count == meter.every:
-                now = ticks_us()
-                meter.report(gc, (now - started) / 1e6)
-                started = now
+                meter.report(gc)
             # The next iteration starts at the next millisecond tick; the bus is served meanwhile.
             while ticks_ms() == tick:
                 if serve():

@@ -193,8 +193,9 @@ def poll_steps(s: ptr32, sm, pio: int):
     k = m + m - 1
     upp = ((s[4] + m) & k) - m
     wrap = 1
-    wrap <<= 30
-    wrap -= 1  # the field counter's mask (not a literal: 2**30 - 1 is no small int on 30-bit ports)
+    wrap <<= 29
+    wrap += wrap - 1  # the field counter's mask, 2**30 - 1: not a literal (no small int on 30-bit
+    # ports), and no 2**30 on the way (a long int, allocated, where small ints are 31 bits)
     if pio:
         r = ptr32(pio)
         index = s[7] & 3
