@@ -36,6 +36,7 @@
 #define MICROPY_PY_SOCKET           (0)
 #define MICROPY_PY_NETWORK          (0)
 #define MICROPY_PY_MACHINE_BITSTREAM (0)
+#define MICROPY_PY_ONEWIRE          (0)
 #define MICROPY_HW_ENABLE_INTERNAL_FLASH_STORAGE (0)
 #define MICROPY_HW_HAS_FLASH        (0)
 #define MICROPY_HW_HAS_SWITCH       (0)
@@ -64,11 +65,10 @@ void ustepper_s32_board_early_init(void);
 #define MICROPY_HW_UART_REPL        PYB_UART_2
 #define MICROPY_HW_UART_REPL_BAUD   115200
 
-// I2C1 is the joint bus (target); I2C2 is broken out.
+// I2C1 is the joint bus (target). I2C2 (PB10 SCL, PB3 SDA) is broken out but the joint does not
+// use it: left out, its driver and interrupt handlers would take flash.
 #define MICROPY_HW_I2C1_SCL         (pin_B8)
 #define MICROPY_HW_I2C1_SDA         (pin_B9)
-#define MICROPY_HW_I2C2_SCL         (pin_B10)
-#define MICROPY_HW_I2C2_SDA         (pin_B3)
 
 // SPI2: the TMC5130 (chip select PB12, driven by the firmware). SPI3: the TLE5012B's SSC, whose
 // single data line reaches MOSI (PC12) and MISO (PC11); the firmware releases MOSI while reading.
