@@ -268,7 +268,7 @@ class Bench:
         self.i2c = FakeAS5600Bus()
         self.sm = FakeSM()
         self.pin = FakePin()
-        self.clock = VirtualClock()
+        self.clock = kw.pop("clock", None) or VirtualClock()
         self.wiring = 1  # +1: positive pulses turn the encoder positive (shaft bit off)
         self.blocked = False
         self.rotor = 0.0  # usteps

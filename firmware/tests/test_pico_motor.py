@@ -10,6 +10,7 @@ from joint.pico.motor_config import DEFAULTS, validate_motor_config
 from joint.pico.tmc2209 import TMC2209, TMCError
 from joint.motion.fixed import ANGLE_Q, RPM_Q, STEPS_Q, to_q
 from joint.motion.hal import MAGNET_MISSING, MAGNET_OK, MAGNET_STRONG, MAGNET_WEAK
+from joint.sim.clock import VirtualClock
 from pico_fakes import Bench, FS, MICROPYTHON, RPM, deg, raises
 
 
@@ -60,6 +61,33 @@ def test_move_steps_lands_exactly_with_the_library_profile():
     m.move_steps(-512)  # relative to the driver position
     b.run_until_reached()
     assert m.driver_position() == 50688
+
+
+class WrappingClock(VirtualClock):
+    """The board's ticks_us: it wraps at 2**30, where a larger int would be a heap object."""
+
+    PERIOD = 1 << 30
+
+    def ticks_us(self):
+        return self.now_us % self.PERIOD
+
+    def ticks_diff(self, a, b):
+        return (a - b + self.PERIOD // 2) % self.PERIOD - self.PERIOD // 2
+
+    def ticks_add(self, a, delta):
+        return (a + delta) % self.PERIOD
+
+
+def test_the_period_grid_wraps_with_the_clock():
+    """Across ticks_us's wrap (every 17.9 minutes on a Pico) a move lands as anywhere else, and
+    the period grid stays a small int instead of growing past the wrap into a long int."""
+    b = Bench(clock=WrappingClock(WrappingClock.PERIOD - 1000000)).begin()
+    m = b.motor
+    m.move_steps(51200)
+    ticks = b.run_until_reached()
+    assert 2030 <= ticks <= 2080 and m.driver_position() == 51200
+    assert b.clock.now_us > WrappingClock.PERIOD
+    assert 0 <= m._last_us < WrappingClock.PERIOD and m._last_us == b.clock.ticks_us()
 
 
 def test_move_angle_rounds_like_the_library():

@@ -133,7 +133,7 @@ class PicoStepper(MotorHAL):
         int32 state arrays: a few calls instead of a hundred attribute loads."""
         if not self._ready:
             return
-        ss, sm, pio, rs, es, enc_regs, enc_buf, vs, ticks_us, diff, tick_us = self._hot
+        ss, sm, pio, rs, es, enc_regs, enc_buf, vs, ticks_us, diff, add, tick_us = self._hot
         now = ticks_us()
         # The nearest whole number of periods: the period grid starts at a call (the resync
         # below), so a call late or early by less than half a period neither skips a period nor
@@ -145,7 +145,7 @@ class PicoStepper(MotorHAL):
             ticks = _MAX_DT_TICKS
             self._last_us = now
         else:
-            self._last_us += ticks * tick_us
+            self._last_us = add(self._last_us, ticks * tick_us)  # wraps as ticks_us does: a small int
         poll_steps(ss, sm, pio)
         # The encoder read queued at the last update, tagged with the driver and field positions
         # of that instant (as5600.py); a blocking read when none is queued.
