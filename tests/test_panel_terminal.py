@@ -78,12 +78,12 @@ STOPPED = re.compile(r"stopped j1 at ([-+]\d+\.\d+) rad, j2 \(not homed\), j3 \(
                      re.M)
 
 
-@pytest.mark.parametrize("ending", ["SIGTERM", "SIGINT", "closed terminal"])  # SIGINT from `kill`: a key press
-# in the panel is a key (Ctrl-C there says how to quit)
+# SIGINT from `kill`; the Ctrl-C key reaches the panel as a key (its terminal is raw), and does the same
+@pytest.mark.parametrize("ending", ["SIGTERM", "SIGINT", "Ctrl-C key", "closed terminal"])
 def test_a_signal_or_a_closed_terminal_stops_the_joint_the_panel_moves(state_dir: Path, tmp_path: Path,
                                                                       ending: str) -> None:
     """The panel on the shared simulated arm sends j1 across its range; a signal (`kill`, a
-    supervisor) or the terminal's window closing ends the panel mid-way. The joint stops before
+    supervisor), Ctrl-C typed in it or the terminal's window closing ends the panel mid-way. The joint stops before
     the panel exits, the panel says where, and nothing of it keeps running."""
     config = str(quick_config(tmp_path, watchdog_ms=1000))  # a loaded machine can stall the panel's cycle
     homed = bioscara("home", "j1", "--config", config)
@@ -104,8 +104,12 @@ def test_a_signal_or_a_closed_terminal_stops_the_joint_the_panel_moves(state_dir
         if ending == "closed terminal":
             assert panel.close_window() == 128 + signal.SIGHUP
         else:
-            signum = signal.Signals[ending]
-            os.kill(panel.pid, signum)
+            if ending == "Ctrl-C key":
+                signum = signal.SIGINT
+                os.write(panel.fd, b"\x03")
+            else:
+                signum = signal.Signals[ending]
+                os.kill(panel.pid, signum)
             assert panel.wait_for_exit() == 128 + signum
             said = panel.shown[since:]
             assert f"interrupted ({interruption.CAUSES[signum]})" in said and "Traceback" not in said, said[-2000:]

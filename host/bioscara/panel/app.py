@@ -11,7 +11,7 @@ import asyncio
 import math
 import textwrap
 from collections.abc import Callable
-from signal import SIG_IGN, Signals, getsignal
+from signal import SIG_IGN, SIGINT, Signals, getsignal
 
 from textual import events, on
 from textual.app import App, ComposeResult
@@ -123,6 +123,7 @@ class PanelApp(App[None]):
         Binding("right", "jog(1)", "jog +", show=False),
         Binding("t", "go_to", "go to"),
         Binding("q", "quit", "quit"),
+        Binding("ctrl+c", "interrupt", "stop and quit", show=False, priority=True),
     ]
 
     def __init__(self, model: PanelModel, end_on: tuple[Signals, ...] = ()) -> None:
@@ -190,6 +191,11 @@ class PanelApp(App[None]):
         self.refresh_slow()
         self.set_interval(REFRESH_S, lambda: self._on_timer(self.refresh_view))
         self.set_interval(SLOW_REFRESH_S, lambda: self._on_timer(self.refresh_slow))
+
+    def action_interrupt(self) -> None:
+        """Ctrl-C typed in the panel (its terminal is raw: a key, not a signal) ends it as SIGINT
+        does: the arm stopped, where each joint stopped said, exit status 130."""
+        self._end_by(SIGINT)
 
     def _end_by(self, signum: Signals) -> None:
         if self.ended_by is None:
