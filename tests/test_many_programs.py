@@ -282,7 +282,7 @@ def _without_breaks(text: str) -> str:
 
 def test_a_second_panel_is_refused_by_name_then_takes_over_when_asked(config: str, state_dir: Path,
                                                                      tmp_path: Path, bioscara: Spawn) -> None:
-    from tests.test_panel_terminal import Terminal
+    from tests.user_programs import Terminal
 
     first, program = _moving_commander(bioscara, config, state_dir, tmp_path)
     refused = Terminal("panel", "--config", config, lines=80)  # room in the log for the whole refusal
@@ -294,6 +294,7 @@ def test_a_second_panel_is_refused_by_name_then_takes_over_when_asked(config: st
         # the log wraps the message in its box: compare without the line breaks and the box's sides
         assert wait_until(lambda: _without_breaks(said) in _without_breaks(refused.read()[since:]), timeout=30)
         assert _without_breaks("or take over with --take-over (it is stopped)") in _without_breaks(refused.shown)
+        assert "[ERROR" not in refused.shown, "said in words, without the original driver's error code"
         assert first.poll() is None, "the refused panel disturbed nothing"
         os.write(refused.fd, b"q")
         assert refused.wait_for_exit() == 0

@@ -324,6 +324,9 @@ def test_unknown_until_read_first_focus_on_the_arm_and_every_known_joint_plotted
             assert all("unknown" in label(app, f"#{name}-homed") for name in model.arm.joints)
             assert app.plotted == [], "nothing plotted at 0.0 before the joints are read"
             await home_everything(app, model, pilot)
+            # the display as the next cycles show it (the last key's action ran in the worker thread
+            # after the view was drawn)
+            await settle(app, pilot, model, lambda: False, 0.1)
             app.refresh_slow()
             await pilot.pause()
             assert app.plotted == ["j1", "j3", "j4"], "every rotary joint has its line"

@@ -21,6 +21,11 @@ class BioscaraError(Exception):
         prefix = f"{joint}: " if joint else ""
         super().__init__(f"{prefix}{message} [{self.code.name}: {protocol.error_string(self.code)}]")
 
+    @property
+    def message(self) -> str:
+        """The error as a user reads it: `JOINT: what`, without the original driver's code."""
+        return f"{self.joint}: {self.detail}" if self.joint else self.detail
+
 
 class NotHomedError(BioscaraError):
     code = ErrorCode.NOT_HOMED

@@ -114,11 +114,7 @@ class Session:
 
     def fail(self, exc: BioscaraError | OSError, status: int) -> None:
         """Report the error that ends the command: one line on stderr, `error: [JOINT: ]what`."""
-        if isinstance(exc, BioscaraError):
-            message = f"{exc.joint}: {exc.detail}" if exc.joint else exc.detail
-        else:
-            message = str(exc)
-        self.err(f"error: {message}")
+        self.err(f"error: {exc.message if isinstance(exc, BioscaraError) else exc}")
 
     def arm_of(self, names: list[str]) -> Arm:
         """An arm made of some of the configured joints (commands act on those only)."""

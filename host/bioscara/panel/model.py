@@ -135,7 +135,7 @@ class PanelModel:
             action()
             self.say(f"{name}: done")
         except BioscaraError as exc:
-            self.say(f"{name}: {exc}")
+            self.say(f"{name}: {exc.message}")
         except Exception as exc:  # a bug: report it on the panel instead of killing the worker
             log.exception("%s failed", name)
             self.say(f"{name}: unexpected error: {exc!r}")
