@@ -28,7 +28,6 @@ import hashlib
 import importlib
 import os
 import re
-import subprocess
 from collections.abc import Callable
 from dataclasses import dataclass
 from importlib import resources
@@ -91,13 +90,10 @@ def _compiler() -> tuple[Callable[[bytes, str], bytes] | None, str]:
     if emitted != CIRCUITPYTHON_MPY:
         return None, f"source (.py): mpy-cross writes .mpy v{emitted}, CircuitPython 10 loads v{CIRCUITPYTHON_MPY}"
 
+    compile_for_micropython = flash.mpy_compiler(binary, ["-O3", f"-msmall-int-bits={SMALL_INT_BITS}"])
+
     def compile_mpy(source: bytes, name: str) -> bytes:
-        result = subprocess.run([binary, "-O3", f"-msmall-int-bits={SMALL_INT_BITS}", "-s", name, "-"],
-                                input=source, capture_output=True, check=False)
-        if result.returncode != 0 or not result.stdout.startswith(b"M"):
-            problem = result.stderr.decode(errors="replace").strip().splitlines()
-            raise FlashError(f"mpy-cross cannot compile {name}: {problem[-1] if problem else 'no output'}")
-        return b"C" + result.stdout[1:]
+        return b"C" + compile_for_micropython(source, name)[1:]  # CircuitPython's .mpy header letter
 
     return compile_mpy, (f".mpy v{emitted} for CircuitPython (bytecode, {SMALL_INT_BITS} small-int bits, "
                          "without line numbers); @micropython.native/viper lines commented out")

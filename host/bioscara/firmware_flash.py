@@ -198,6 +198,17 @@ def _emitted_mpy_version(binary: str) -> int:
     return int(match.group(1)) if match else 0
 
 
+def mpy_compiler(binary: str, options: list[str]) -> Callable[[bytes, str], bytes]:
+    """mpy-cross `binary` with `options` as a source -> .mpy function (FlashError naming the file)."""
+    def compile_mpy(source: bytes, name: str) -> bytes:
+        result = subprocess.run([binary, *options, "-s", name, "-"], input=source, capture_output=True, check=False)
+        if result.returncode != 0 or not result.stdout.startswith(b"M"):
+            problem = result.stderr.decode(errors="replace").strip().splitlines()
+            raise FlashError(f"mpy-cross cannot compile {name}: {problem[-1] if problem else 'no output'}")
+        return result.stdout
+    return compile_mpy
+
+
 def _compiler(board: BoardInfo, line_numbers: bool = False) -> tuple[Callable[[bytes, str], bytes] | None, str]:
     """A source -> .mpy function for `board` and a description, or None and why not.
 
@@ -220,16 +231,9 @@ def _compiler(board: BoardInfo, line_numbers: bool = False) -> tuple[Callable[[b
         # The board refuses an .mpy compiled for more small-int bits than it has.
         options.append(f"-msmall-int-bits={board.small_int_bits}")
 
-    def compile_mpy(source: bytes, name: str) -> bytes:
-        result = subprocess.run([binary, *options, "-s", name, "-"], input=source, capture_output=True, check=False)
-        if result.returncode != 0 or not result.stdout.startswith(b"M"):
-            problem = result.stderr.decode(errors="replace").strip().splitlines()
-            raise FlashError(f"mpy-cross cannot compile {name}: {problem[-1] if problem else 'no output'}")
-        return result.stdout
-
     arch = board.arch or "bytecode only"
     lines = "with" if line_numbers else "without"
-    return compile_mpy, (f".mpy v{emitted} ({arch}, {board.small_int_bits or 'default'} small-int bits, "
+    return mpy_compiler(binary, options), (f".mpy v{emitted} ({arch}, {board.small_int_bits or 'default'} small-int bits, "
                          f"{lines} line numbers)")
 
 

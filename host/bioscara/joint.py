@@ -547,8 +547,7 @@ class Joint:
             else:
                 with self.visit_legacy():  # HOMINGRESULT is not in the v2 state block
                     (outcome,) = self._read(P.register(P.HOMINGRESULT))
-                self.homing_failure = (P.HOMING_OUTCOMES[outcome] if 0 < outcome < len(P.HOMING_OUTCOMES)
-                                       else "the end stop was not reached")
+                self.homing_failure = P.homing_outcome_string(outcome) if outcome else "the end stop was not reached"
             raise NotHomedError(f"homing ended, not homed: {self.homing_failure}", joint=self.name)
         if self.homing_range_check is not None:
             self._check_homed_range(self.homing_range_check)
