@@ -15,29 +15,25 @@ share an environment with the project's: `make s32-emu` makes build/qiling-venv,
 
     build/qiling-venv/bin/python tests/s32_emu.py FLASH.bin
 
-boots FLASH.bin, runs its main loop a little, and prints `s32.heap_free_after_boot_kb` and
-`s32.main_loop_instructions_estimate` (bench/s32_image.py and tests/test_s32_emulated.py run it;
-the estimate needs firmware.elf beside FLASH.bin).
+boots FLASH.bin and serves it on stdin/stdout (`Server`: I2C transactions on the joint bus,
+virtual time, the chips' registers, instruction counts), for the host's `Bus` in the project's
+environment (tests/s32_bus.py, which tests/test_s32_emulated.py and bench/s32_image.py use).
 """
 
 from __future__ import annotations
 
+import json
 import pathlib
-import re
 import subprocess
 import sys
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "firmware" / "tests"))
-sys.path.insert(0, str(ROOT / "firmware"))
 
 from s32_fakes import Board  # noqa: E402
 
 
-JOINT_ADDRESS = 0x11  # J1's, from the composed flash's configuration
-HEAP_LINE = re.compile(rb"booted: (\d+) bytes of heap free")
 BOOT_MS = 3000  # virtual time a boot may take (it takes about 940 ms)
-ESTIMATE_MS = 20  # of the main loop counted instruction by instruction
 AFTER_BOOT_MS = 50  # of the main loop after the boot, for a fault in its first iterations
 
 
@@ -109,16 +105,25 @@ _I2C_SR1_RXNE = 0x40
 _I2C_SR1_TXE = 0x80
 _I2C_SR1_AF = 0x400
 _I2C_SR1_ERRORS = 0xDF00  # rc_w0: BERR ARLO AF OVR PECERR TIMEOUT SMBALERT
+_I2C_SR2_BUSY = 0x2
 _I2C_SR2_TRA = 0x4
 _I2C_CR1_PE = 0x1
+_I2C_CR2_ITERREN = 0x100
+_I2C_CR2_ITEVTEN = 0x200
+_I2C_CR2_ITBUFEN = 0x400
 
 
 def _i2c_target():
-    """Qiling's STM32F4 I2C with the target side its model lacks: a controller on the bus
-    (`S32I2cTarget.post`) raises the events in the order the hardware does and
-    MicroPython's i2cslave.c expects (write: ADDR RXNE*n STOPF; read: ADDR TXE*(n+1) AF), and the
-    registers clear their flags as the reference manual says (ADDR: SR1 then SR2 read; RXNE: DR
-    read; TXE: DR write; STOPF: SR1 read then CR1 write; errors: written 0)."""
+    """Qiling's STM32F4 I2C with the target side its model lacks, as RM0368 section 18 describes
+    a slave: a controller on the bus (`S32I2cTarget.post`) raises the events in the hardware's
+    order, which MicroPython's i2cslave.c expects (write: ADDR RXNE*n STOPF; read: ADDR TXE*(n+1),
+    then the controller's NACK sets AF, an error, with no STOPF after it; write then read: ADDR
+    RXNE*n ADDR TXE*(m+1) AF), on the interrupt CR2 enables for each (event: ITEVTEN, TXE and RXNE
+    also ITBUFEN; error: ITERREN), and the registers clear their flags as the manual says (ADDR:
+    SR1 read while set, then SR2 read; RXNE: DR read; TXE: DR write; STOPF: SR1 read then CR1 write; errors:
+    written 0), with SR2's BUSY from the START to the STOP. Not modelled: BTF and the byte the shift register holds while DR is full (the
+    controller waits for every event instead: clock stretching without a limit), OVR/UNDR, BERR,
+    ARLO, general call, dual addressing, PEC and SMBus."""
     from qiling.hw.i2c.stm32f4xx_i2c import STM32F4xxI2c
     from qiling.hw.peripheral import QlPeripheral
 
@@ -130,17 +135,20 @@ def _i2c_target():
             self.rx_byte = 0
             self.sent = bytearray()
             self._stop_seen = False
+            self._addr_seen = False  # SR1 read with ADDR set: the SR2 read that follows clears it
 
         @QlPeripheral.monitor()
         def read(self, offset: int, size: int) -> int:
             regs = self.instance
             if offset == self.struct.SR1.offset:
                 self._stop_seen = bool(regs.SR1 & _I2C_SR1_STOPF)
+                self._addr_seen = bool(regs.SR1 & _I2C_SR1_ADDR)
                 return regs.SR1
             if offset == self.struct.SR2.offset:
-                value = regs.SR2
-                regs.SR1 &= ~_I2C_SR1_ADDR
-                return value
+                if self._addr_seen:
+                    regs.SR1 &= ~_I2C_SR1_ADDR
+                    self._addr_seen = False
+                return regs.SR2
             if offset == self.struct.DR.offset:
                 regs.SR1 &= ~_I2C_SR1_RXNE
                 return self.rx_byte
@@ -170,11 +178,34 @@ def _i2c_target():
             return (regs.OAR1 >> 1) & 0x7F if regs.CR1 & _I2C_CR1_PE else None
 
         def post(self, flags: int, transmitting: bool = False) -> None:
-            """An event of the controller: set the flags and raise the event interrupt."""
+            """An event of the controller: set the flags (SR2's TRA for the direction) and raise
+            the interrupt lines."""
             regs = self.instance
-            regs.SR2 = _I2C_SR2_TRA if transmitting else 0
+            regs.SR2 = _I2C_SR2_BUSY | (_I2C_SR2_TRA if transmitting else 0)
             regs.SR1 |= flags
-            self.ql.hw.nvic.set_pending(self.ev_intn)
+            self.raise_lines()
+
+        def raise_lines(self) -> None:
+            """Pend the interrupts whose lines SR1 and CR2 assert: they are levels, asserted while
+            a flag is set and enabled (a target re-made mid-transaction is interrupted again when
+            it enables them): the error line for AF (ITERREN), the event line for ADDR and STOPF
+            (ITEVTEN) and for TXE and RXNE (ITEVTEN and ITBUFEN)."""
+            regs = self.instance
+            nvic = self.ql.hw.nvic
+            if regs.SR1 & _I2C_SR1_ERRORS and regs.CR2 & _I2C_CR2_ITERREN:
+                nvic.set_pending(self.er_intn)
+            events = regs.SR1 & (_I2C_SR1_ADDR | _I2C_SR1_STOPF)
+            if regs.CR2 & _I2C_CR2_ITBUFEN:
+                events |= regs.SR1 & (_I2C_SR1_TXE | _I2C_SR1_RXNE)
+            if events and regs.CR2 & _I2C_CR2_ITEVTEN:
+                nvic.set_pending(self.ev_intn)
+
+        def bus(self, busy: bool) -> None:
+            """SR2's BUSY: set from a START on the bus (whoever it addresses) to its STOP."""
+            if busy:
+                self.instance.SR2 |= _I2C_SR2_BUSY
+            else:
+                self.instance.SR2 &= ~_I2C_SR2_BUSY
 
         def pending(self, flags: int) -> bool:
             return bool(self.instance.SR1 & flags)
@@ -226,7 +257,8 @@ class TleFramer:
 # Virtual time: one instruction is one cycle of the 84 MHz core (an estimate: the emulator has no
 # timing fidelity). The CPU runs in slices of SLICE instructions; between slices the peripherals
 # step, SysTick counts the slice down, pending interrupts are taken and the driver's ramp advances a
-# millisecond at a time. A WFI ends its slice early: the core sleeps out the rest of it.
+# millisecond at a time. A WFI ends its slice early: the core sleeps out the rest of it. A
+# transaction on the joint bus runs the CPU in shorter steps: a byte's wire time each (i2c_transfer).
 CORE_HZ = 84_000_000
 CYCLES_PER_MS = CORE_HZ // 1000
 SLICE = CYCLES_PER_MS // 8
@@ -234,7 +266,7 @@ _SYSTICK_ENABLE = 0x1
 _SYSTICK_TICKINT = 0x2
 _SYSTICK_COUNTFLAG = 0x10000
 _UNMASK_STEPS = 64
-_I2C_EVENT_SLICES = 80  # 10 ms: the firmware serves an event in its interrupt, within a slice
+I2C_STRETCH_LIMIT_S = 0.01  # the firmware serves an event in its interrupt, well within this
 IRQ_SYSTICK = -1  # Qiling's numbering of the core's exceptions (qiling.arch.cortex_m_const.IRQ)
 IRQ_HARD_FAULT = -13
 
@@ -282,61 +314,89 @@ class EmulatedS32:
                                     else action) for register, action in ql.hw.nvic.triggers]
         self.ql = ql
         self.cycles = 0
+        self._stepping = SLICE  # cycles the next SysTick step counts down
         self.output = b""
 
     def run_ms(self, ms: int) -> bytes:
         """Advance `ms` milliseconds of virtual time; returns the new UART output."""
-        for _ in range(ms * CYCLES_PER_MS // SLICE):
-            self._run_slice()
+        return self.run_cycles(ms * CYCLES_PER_MS)
+
+    def run_cycles(self, cycles: int) -> bytes:
+        """Advance `cycles` core clocks of virtual time (in slices); returns the new UART output."""
+        while cycles > 0:
+            self._run(min(cycles, SLICE))
+            cycles -= SLICE
         got = self.ql.hw.usart2.recv()
         self.output += got
         return got
 
-    def _run_slice(self) -> None:
+    def _run(self, instructions: int) -> None:
+        """Step the peripherals, run the CPU `instructions` (cycles), then the board's millisecond
+        ticks the time crossed."""
         from unicorn import UcError
 
+        self._stepping = instructions
         self.ql.hw.step()
         try:
-            self.ql.uc.emu_start(self.ql.arch.effective_pc, 0, 0, SLICE)
+            self.ql.uc.emu_start(self.ql.arch.effective_pc, 0, 0, instructions)
         except UcError as exc:
             raise EmulationFault(self, exc) from exc
-        self.cycles += SLICE
+        ms_before = self.cycles // CYCLES_PER_MS
+        self.cycles += instructions
         self._reach_unmasked()
-        if self.cycles % CYCLES_PER_MS == 0:
+        for _ in range(self.cycles // CYCLES_PER_MS - ms_before):
             self.board.tick_ms()
 
-    def i2c_transfer(self, address: int, write: bytes | None, read_len: int) -> bytes:
+    def i2c_transfer(self, address: int, write: bytes | None, read_len: int, speed_hz: int = 400_000) -> bytes:
         """One transaction of a controller on the joint bus (I2C1), as `Bus.transfer` makes it:
         write `write`, repeated START, read `read_len` bytes, STOP. OSError when nobody answers
-        the address (NACK); TimeoutError when the target stops serving its events."""
+        the address (NACK); TimeoutError when the target stops serving its events.
+
+        Virtual time: each event (address, data byte, NACK) takes one byte's wire time at
+        `speed_hz` (9 clocks), and as many more as the target holds it unserved (on the wire:
+        SCL stretched), up to I2C_STRETCH_LIMIT_S."""
+        target = self.ql.hw.i2c1
+        target.bus(True)
+        try:
+            return self._i2c_phases(address, write, read_len, speed_hz)
+        finally:
+            target.bus(False)
+
+    def _i2c_phases(self, address: int, write: bytes | None, read_len: int, speed_hz: int) -> bytes:
         target = self.ql.hw.i2c1
         if target.address() != address:
+            self.run_cycles(self._byte_cycles(speed_hz))  # the address byte, not acknowledged
             raise OSError(f"no I2C target answers 0x{address:02x}")
         if write is not None:
-            self._i2c_event(_I2C_SR1_ADDR)
+            self._i2c_event(_I2C_SR1_ADDR, speed_hz)
             for byte in write:
                 target.rx_byte = byte
-                self._i2c_event(_I2C_SR1_RXNE)
+                self._i2c_event(_I2C_SR1_RXNE, speed_hz)
             if not read_len:
-                self._i2c_event(_I2C_SR1_STOPF)
+                self._i2c_event(_I2C_SR1_STOPF, speed_hz)
                 return b""
         target.sent.clear()
-        self._i2c_event(_I2C_SR1_ADDR, transmitting=True)
+        self._i2c_event(_I2C_SR1_ADDR, speed_hz, transmitting=True)
         for _ in range(read_len + 1):  # the last TXE comes before the controller's NACK
-            self._i2c_event(_I2C_SR1_TXE, transmitting=True)
-        target.post(_I2C_SR1_AF, transmitting=True)
-        self._run_slice()
+            self._i2c_event(_I2C_SR1_TXE, speed_hz, transmitting=True)
+        self._i2c_event(_I2C_SR1_AF, speed_hz, transmitting=True)
         if len(target.sent) < read_len:
             raise TimeoutError(f"the target sent {len(target.sent)} of {read_len} bytes")
         return bytes(target.sent[:read_len])
 
-    def _i2c_event(self, flags: int, transmitting: bool = False) -> None:
+    @staticmethod
+    def _byte_cycles(speed_hz: int) -> int:
+        return CORE_HZ * 9 // speed_hz
+
+    def _i2c_event(self, flags: int, speed_hz: int, transmitting: bool = False) -> None:
         target = self.ql.hw.i2c1
         target.post(flags, transmitting)
-        for _ in range(_I2C_EVENT_SLICES):
-            self._run_slice()
+        byte = self._byte_cycles(speed_hz)
+        for _ in range(int(I2C_STRETCH_LIMIT_S * CORE_HZ) // byte + 1):
+            self._run(byte)
             if not target.pending(flags):
                 return
+            target.raise_lines()
         raise TimeoutError(f"the I2C target left event 0x{flags:x} unserved")
 
     def run_until(self, text: bytes, ms: int) -> bool:
@@ -358,11 +418,11 @@ class EmulatedS32:
             self.ql.uc.emu_start(self.ql.arch.effective_pc, 0, 0, 1)
 
     def _systick_step(self) -> None:
-        """SysTick counts down a slice of core clocks, reloading from LOAD as the hardware does."""
+        """SysTick counts down the step's core clocks, reloading from LOAD as the hardware does."""
         tick = self.ql.hw.systick.instance
         if not tick.CTRL & _SYSTICK_ENABLE:
             return
-        value = tick.VAL - SLICE
+        value = tick.VAL - self._stepping
         if value < 0:
             value %= tick.LOAD + 1
             tick.CTRL |= _SYSTICK_COUNTFLAG
@@ -419,35 +479,38 @@ class EmulationFault(Exception):
                          f"after {emu.cycles} cycles")
 
 
-def legacy_read(emu: EmulatedS32, name: str) -> bytes:
-    """The wire bytes of a legacy register read as the host makes it (bioscara.link.legacy:
-    the register's address, then its reply and the flags byte)."""
-    from joint.spec import protocol
+class InstructionCount:
+    """Instructions executed from `start` to `stop`: all of them, and those in the joint bus's
+    interrupts (I2C1's event and error handlers, the firmware's Python handler included). Slow (a
+    Python hook on every instruction): for the estimates only."""
 
-    register = protocol.register(getattr(protocol, name))
-    return emu.i2c_transfer(JOINT_ADDRESS, bytes([register.addr]), register.rsize + 1)
+    def __init__(self, emu: EmulatedS32) -> None:
+        self.emu = emu
+        target = emu.ql.hw.i2c1
+        self.i2c_exceptions = (16 + target.ev_intn, 16 + target.er_intn)  # IPSR holds the exception number
+        self.total = 0
+        self.in_i2c = 0
+        self._hook = None
 
+    def start(self) -> None:
+        from unicorn import UC_HOOK_CODE
+        from unicorn.arm_const import UC_ARM_REG_IPSR
 
-def i2c_interrupt_instructions(emu: EmulatedS32, name: str) -> int:
-    """Instructions the I2C1 event interrupt executes over one legacy read of register `name`
-    (every event of the transaction, the firmware's Python handler included). Slow (a Python hook
-    on every instruction): for the estimate only."""
-    from unicorn import UC_HOOK_CODE
-    from unicorn.arm_const import UC_ARM_REG_IPSR
+        self.total = self.in_i2c = 0
 
-    in_i2c_event = 16 + emu.ql.hw.i2c1.ev_intn  # IPSR holds the exception number
-    count = [0]
+        def count(uc, address, size, _):
+            self.total += 1
+            if uc.reg_read(UC_ARM_REG_IPSR) in self.i2c_exceptions:
+                self.in_i2c += 1
 
-    def counter(uc, address, size, _):
-        if uc.reg_read(UC_ARM_REG_IPSR) == in_i2c_event:
-            count[0] += 1
+        self._hook = self.emu.ql.uc.hook_add(UC_HOOK_CODE, count)
+        self.emu.ql.uc.ctl_flush_tb()  # blocks translated before the hook would run uncounted
 
-    hook = emu.ql.uc.hook_add(UC_HOOK_CODE, counter)
-    emu.ql.uc.ctl_flush_tb()  # blocks translated before the hook would run uncounted
-    legacy_read(emu, name)
-    emu.ql.uc.hook_del(hook)
-    emu.ql.uc.ctl_flush_tb()
-    return count[0]
+    def stop(self) -> None:
+        if self._hook is not None:
+            self.emu.ql.uc.hook_del(self._hook)
+            self.emu.ql.uc.ctl_flush_tb()
+            self._hook = None
 
 
 def main_loop_instructions(emu: EmulatedS32, elf: pathlib.Path, ms: int) -> tuple[int, int]:
@@ -475,43 +538,102 @@ def main_loop_instructions(emu: EmulatedS32, elf: pathlib.Path, ms: int) -> tupl
     return counts[0], counts[1]
 
 
-def main(flash: str) -> int:
-    """Boot `flash`, run the main loop AFTER_BOOT_MS more; the log to stderr, the heap to stdout."""
-    emu = EmulatedS32(pathlib.Path(flash))
-    try:
-        booted = emu.run_until(b"heap free", BOOT_MS)
-        boot_ms = emu.cycles // CYCLES_PER_MS
-        frames = emu.board.tmc.frames
+# The TMC5130 registers `board` reports (datasheet names; ustepper-model.md section 2's units).
+TMC_REGISTERS = {"GCONF": 0x00, "IHOLD_IRUN": 0x10, "RAMPMODE": 0x20, "XACTUAL": 0x21, "AMAX": 0x26,
+                 "VMAX": 0x27, "DMAX": 0x28, "XTARGET": 0x2D, "CHOPCONF": 0x6C}
+
+
+class Server:
+    """The emulated S32 served on a pipe, one JSON object a line each way (tests/s32_bus.py is
+    the other end). After the boot it writes {"booted": true|false, ...}; then each request
+    {"op": ...} gets one reply. Every reply carries "us" (virtual time since reset) and "log"
+    (the UART output since the last reply); a fault of the emulated CPU replies {"fault": why}
+    and ends the server. Requests:
+
+        transfer  address, write (hex or null), read, speed_hz -> data (hex), or nack / timeout
+        run       us: advance virtual time
+        board     -> the TMC5130's registers (TMC_REGISTERS), VACTUAL, its datagram count, the
+                     rotor's position and wall (usteps)
+        wall      position (usteps or null), side (+1: stops travel upward, -1 downward)
+        count     on: start (true) or stop (false) counting instructions -> total, in_i2c
+        main_loop ms -> instructions, iterations (needs firmware.elf beside the flash file)
+    """
+
+    def __init__(self, flash: pathlib.Path) -> None:
+        self.flash = flash
+        self.emu = EmulatedS32(flash)
+        self.count = InstructionCount(self.emu)
+        self._logged = 0
+
+    def reply(self, message: dict) -> None:
+        emu = self.emu
+        message["us"] = emu.cycles * 1_000_000 // CORE_HZ
+        message["log"] = emu.output[self._logged:].decode(errors="replace")
+        self._logged = len(emu.output)
+        sys.stdout.write(json.dumps(message) + "\n")
+        sys.stdout.flush()
+
+    def boot(self) -> bool:
+        booted = self.emu.run_until(b"heap free", BOOT_MS)
         if booted:
-            emu.run_ms(AFTER_BOOT_MS)
-            identity = legacy_read(emu, "IDENTITY")
-            angle = legacy_read(emu, "ANGLEMOVED")
-    except (EmulationFault, OSError) as exc:  # OSError: the joint bus did not answer (TimeoutError too)
-        sys.stderr.write(emu.output.decode(errors="replace"))
-        sys.stderr.write(f"\nemulation stopped: {exc}\n")
-        return 1
-    sys.stderr.write(emu.output.decode(errors="replace"))
-    if not booted:
-        sys.stderr.write(f"the emulated S32 did not report its heap within {BOOT_MS} ms\n")
-        return 1
-    sys.stderr.write(f"booted in {boot_ms} ms of virtual time; then {emu.board.tmc.frames - frames} TMC5130 "
-                     f"datagrams in {AFTER_BOOT_MS} ms\n")
-    for name, reply in (("IDENTITY", identity), ("ANGLEMOVED", angle)):
-        sys.stderr.write(f"legacy {name} read on I2C1 at 0x{JOINT_ADDRESS:02x}: {reply.hex()}\n")
-    free = int(HEAP_LINE.search(emu.output).group(1))
-    print(f"s32.heap_free_after_boot_kb {free / 1024:.1f}")
-    elf = pathlib.Path(flash).with_name("firmware.elf")
-    if elf.exists():
-        instructions, iterations = main_loop_instructions(emu, elf, ESTIMATE_MS)
-        print(f"s32.main_loop_instructions_estimate {instructions // max(iterations, 1)}")
-        in_interrupt = i2c_interrupt_instructions(emu, "IDENTITY")
-        print(f"s32.i2c_read_instructions_estimate {in_interrupt}")
-        sys.stderr.write(f"estimate (no timing fidelity): {instructions} instructions in {ESTIMATE_MS} ms of "
-                         f"virtual time, {iterations} main-loop iterations (1 kHz would be {ESTIMATE_MS}); at one "
-                         f"instruction a cycle an iteration takes {instructions / max(iterations, 1) / 84:.0f} us "
-                         f"of the 1000 us period; a legacy IDENTITY read (1 byte written, 10 read) runs "
-                         f"{in_interrupt} instructions in the I2C1 event interrupt ({in_interrupt / 84:.0f} us)\n")
-    return 0
+            self.emu.run_ms(AFTER_BOOT_MS)
+        self.reply({"booted": booted})
+        return booted
+
+    def handle(self, request: dict) -> dict:
+        emu = self.emu
+        op = request["op"]
+        if op == "transfer":
+            write = None if request["write"] is None else bytes.fromhex(request["write"])
+            try:
+                data = emu.i2c_transfer(request["address"], write, request["read"], request["speed_hz"])
+            except TimeoutError as exc:
+                return {"timeout": str(exc)}
+            except OSError as exc:
+                return {"nack": str(exc)}
+            finally:
+                self.emu.run_cycles(0)  # collect the UART output the transaction caused
+            return {"data": data.hex()}
+        if op == "run":
+            emu.run_cycles(request["us"] * CYCLES_PER_MS // 1000)
+            return {}
+        if op == "board":
+            tmc, rotor = emu.board.tmc, emu.board.rotor
+            registers = {name: tmc.regs[address] for name, address in TMC_REGISTERS.items()}
+            return {"tmc": registers, "VACTUAL": tmc.v, "datagrams": tmc.frames, "rotor": rotor.position,
+                    "wall": rotor.wall}
+        if op == "wall":
+            emu.board.rotor.wall = request["position"]
+            emu.board.rotor.wall_side = request["side"]
+            return {}
+        if op == "count":
+            if request["on"]:
+                self.count.start()
+                return {}
+            self.count.stop()
+            return {"total": self.count.total, "in_i2c": self.count.in_i2c}
+        if op == "main_loop":
+            instructions, iterations = main_loop_instructions(emu, self.flash.with_name("firmware.elf"), request["ms"])
+            emu.run_cycles(0)
+            return {"instructions": instructions, "iterations": iterations}
+        return {"error": f"no request {op!r}"}
+
+    def serve(self) -> int:
+        try:
+            if not self.boot():
+                return 1
+            for line in sys.stdin:
+                if line.strip():
+                    self.reply(self.handle(json.loads(line)))
+        except EmulationFault as exc:
+            self.reply({"fault": str(exc)})
+            return 1
+        return 0
+
+
+def main(flash: str) -> int:
+    """Boot `flash` and serve it on stdin/stdout until stdin closes."""
+    return Server(pathlib.Path(flash)).serve()
 
 
 if __name__ == "__main__":
