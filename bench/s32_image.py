@@ -14,9 +14,18 @@ Prints `name value` lines, from the built files (the ELF's symbols, arm-none-eab
 
     s32.heap_free_after_boot_kb   what the firmware logs once booted as J1 (gc.mem_free() after a
                                   collection, before the main loop), on the image booted in Qiling
-                                  (tests/s32_emu.py, `make s32-emu`) with the TMC5130 and TLE5012B
-                                  models; without Qiling, or when the emulation fails, it says
-                                  why it is not measured instead of printing a figure
+                                  through the host's Bus over it (tests/s32_bus.py, `make s32-emu`)
+
+and estimates from instructions counted there (one instruction taken as one cycle of the 84 MHz
+core; the emulator has no timing fidelity, real code takes more cycles than instructions):
+
+    s32.main_loop_instructions_estimate          per main-loop iteration (interrupts included)
+    s32.i2c_legacy_read_instructions_estimate    in I2C1's interrupts over a legacy IDENTITY read
+                                                 (the Python IRQ handler included)
+    s32.i2c_v2_cycle_instructions_estimate       in I2C1's interrupts over one v2 cycle of the
+                                                 host's V2Link (mem mode: C only)
+
+Without Qiling, or when the emulation fails, it says why they are not measured instead.
 
 Exit status 1 when the image is not there (with what is missing).
 """
@@ -28,9 +37,12 @@ import re
 import shutil
 import subprocess
 import sys
+import tempfile
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
-EMULATOR_PYTHON = ROOT / "build" / "qiling-venv" / "bin" / "python"
+HEAP_LINE = re.compile(r"booted: (\d+) bytes of heap free")
+J1_ADDRESS = 0x11
+ESTIMATE_MS = 20  # of the main loop counted instruction by instruction
 FLASH_FOR_IMAGE = 252 * 1024  # firmware/boards/USTEPPER_S32/ustepper_s32.ld: FLASH
 TARGET_FLASH_FREE_KB = 4.0
 TARGET_HEAP_FREE_KB = 12.0
@@ -73,31 +85,67 @@ def main(build: pathlib.Path) -> int:
     print(f"s32.frozen_kb {frozen_bytes(elf) / 1024:.1f}")
     print(f"s32.static_ram_kb {(sym['_ebss'] - sym['_ram_start']) / 1024:.1f}")
     print(f"s32.gc_heap_kb {(sym['_heap_end'] - sym['_heap_start']) / 1024:.1f}")
-    heap, why = heap_after_boot(binary)
-    if heap is None:
-        print(f"s32.heap_free_after_boot_kb: not measured ({why}); the GC heap's size above is its upper bound",
-              file=sys.stderr)
-    else:
-        print(heap)
+    lines, why = emulated_figures()
+    if not lines:
+        print(f"s32.heap_free_after_boot_kb and the instruction estimates: not measured ({why}); the GC heap's "
+              "size above is the heap's upper bound", file=sys.stderr)
+    for line in lines[:-1]:
+        print(line, flush=True)
+    if lines:
+        print(lines[-1], file=sys.stderr)
     print(f"targets: flash free >= {TARGET_FLASH_FREE_KB:g} KB, heap free after boot >= {TARGET_HEAP_FREE_KB:g} KB",
           file=sys.stderr)
     return 0
 
 
-def heap_after_boot(binary: pathlib.Path) -> tuple[str | None, str]:
-    """The emulator's `s32.heap_free_after_boot_kb` line for J1's flash, or None and why not."""
-    if not EMULATOR_PYTHON.exists():
-        return None, "Qiling is missing: make s32-emu"
-    from bioscara import s32flash
+def emulated_figures() -> tuple[list[str], str]:
+    """The emulated S32's lines (J1's flash booted through tests/s32_bus.py), or none and why not."""
+    sys.path[:0] = [str(ROOT / "tests")]
+    import s32_bus
 
-    flash = binary.parent / "flash_j1.bin"
-    flash.write_bytes(s32flash.build("J1", binary).composed())
-    result = subprocess.run([str(EMULATOR_PYTHON), str(ROOT / "tests" / "s32_emu.py"), str(flash)],
-                            capture_output=True, text=True, timeout=1800, check=False)
-    if result.returncode != 0:
-        last = [line for line in result.stderr.splitlines() if line.strip()][-1:] or ["no output"]
-        return None, f"the emulated S32 did not report it: {last[0][:160]}"
-    return result.stdout.strip(), ""
+    why = s32_bus.missing()
+    if why is not None:
+        return [], why
+    from bioscara.errors import BioscaraError
+    from bioscara.joint import Joint
+    from bioscara.link.v2 import V2Link
+
+    with tempfile.TemporaryDirectory() as tmp:
+        try:
+            bus = s32_bus.EmulatedS32Bus(s32_bus.EmulatedS32Bus.flash_for("J1", pathlib.Path(tmp)))
+        except s32_bus.EmulatorError as exc:
+            return [], f"the emulated S32 did not boot: {str(exc).splitlines()[0][:160]}"
+        try:
+            return _measure(bus, Joint("J1", J1_ADDRESS, bus), V2Link), ""
+        except (BioscaraError, s32_bus.EmulatorError) as exc:
+            return [], f"the emulated S32 failed: {str(exc).splitlines()[0][:160]}"
+        finally:
+            bus.close()
+
+
+def _measure(bus, joint, v2_link) -> list[str]:
+    """Heap after boot (the firmware's log line), then instruction counts: estimates (one
+    instruction a cycle; the emulator has no timing fidelity); last, those in words."""
+    free = int(HEAP_LINE.search(bus.log).group(1))
+    lines = [f"s32.heap_free_after_boot_kb {free / 1024:.1f}"]
+    instructions, iterations = bus.main_loop_instructions(ESTIMATE_MS)
+    lines.append(f"s32.main_loop_instructions_estimate {instructions // max(iterations, 1)}")
+    joint.init()
+    with bus.counting() as legacy:
+        joint.read_register("IDENTITY")  # 1 byte written, 10 read
+    lines.append(f"s32.i2c_legacy_read_instructions_estimate {legacy[0].in_i2c}")
+    joint.use_v2()
+    assert isinstance(joint.link, v2_link)
+    with bus.counting() as cycle:
+        joint.cycle()  # a NONE frame of 7 bytes written, the state block's 8 read
+    lines.append(f"s32.i2c_v2_cycle_instructions_estimate {cycle[0].in_i2c}")
+    joint.close()
+    lines.append(f"estimates (no timing fidelity: one instruction taken as one cycle of 84 MHz): "
+          f"{iterations} main-loop iterations in {ESTIMATE_MS} ms of virtual time, "
+          f"{instructions / max(iterations, 1) / 84:.0f} us of the 1000 us period each; the I2C1 interrupts "
+          f"run {legacy[0].in_i2c / 84:.0f} us over a legacy IDENTITY read and {cycle[0].in_i2c / 84:.0f} us "
+          f"over a v2 cycle")
+    return lines
 
 
 if __name__ == "__main__":
