@@ -9,7 +9,7 @@ import pytest
 from bioscara.bus.sim import SimBus
 from bioscara.config import ArmConfig
 from bioscara.errors import (
-    IncorrectStateError, InvalidArgumentError, NotEnabledError, NotHomedError, NotInitError,
+    BioscaraError, IncorrectStateError, InvalidArgumentError, NotEnabledError, NotHomedError, NotInitError,
 )
 from bioscara.firmware.motion.hal import MAGNET_MISSING, MAGNET_OK, MAGNET_WEAK
 from bioscara.firmware.spec import protocol as P
@@ -49,6 +49,26 @@ def test_commands_before_init_raise_not_init(config: ArmConfig, bus: SimBus) -> 
     joint.close()
     with pytest.raises(NotInitError):
         joint.get_velocity()
+
+
+def test_a_ping_answered_outside_the_legacy_map_leaves_the_flags(config: ArmConfig, bus: SimBus) -> None:
+    """A joint between maps (an S32 leaving v2 answers 00 00 to a PING for a moment) is not
+    reporting flags: the host keeps the ones it had, and no false 'rebooted' follows."""
+    joint = make(config, bus)
+    assert not joint.is_enabled()
+    original = bus._transfer_once
+    zeros = [bytes(2)]
+
+    def between_maps(addr: int, write: bytes | None, read_len: int) -> bytes:
+        if write == bytes([P.PING]) and zeros:
+            return zeros.pop()
+        return original(addr, write, read_len)
+    bus._transfer_once = between_maps  # type: ignore[method-assign]
+    with pytest.raises(BioscaraError):
+        joint.check_com()
+    assert not joint.is_enabled()
+    joint.check_com()
+    assert joint.disabled_cause is None
 
 
 def test_motion_needs_enabled_and_homed(config: ArmConfig, bus: SimBus) -> None:

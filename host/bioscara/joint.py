@@ -713,7 +713,9 @@ class Joint:
             self._take_state(flags, values[0], self.velocity_rpm)
         elif reg.addr == P.GETENCODERRPM:
             self._take_state(flags, self.position_deg, values[0])
-        else:
+        elif reg.addr != P.PING or values[0] == P.ACK:
+            # A PING answered without 'O' is not the legacy map (a joint between maps answers
+            # zeros): its flags byte says nothing, and taking it would report a false reboot.
             self._take_flags(flags)
         return values
 
