@@ -51,10 +51,17 @@ class EmulatorError(Exception):
 @dataclass(frozen=True)
 class InstructionCount:
     """Instructions the emulated CPU executed over a stretch of requests (`EmulatedS32Bus.counting`):
-    all, and those in I2C1's interrupts. One instruction is taken as one cycle: an estimate."""
+    all, those in I2C1's interrupts, and the main loop's iterations meanwhile. One instruction is
+    taken as one cycle: an estimate."""
 
     total: int = 0
     in_i2c: int = 0
+    iterations: int = 0
+
+    @property
+    def per_iteration(self) -> int:
+        """Instructions per main-loop iteration, interrupts included."""
+        return self.total // max(self.iterations, 1)
 
 
 class EmulatedS32Bus(Bus):
@@ -158,12 +165,7 @@ class EmulatedS32Bus(Bus):
             yield result
         finally:
             reply = self.request("count", on=False)
-            result.append(InstructionCount(reply["total"], reply["in_i2c"]))
-
-    def main_loop_instructions(self, ms: int) -> tuple[int, int]:
-        """(instructions, main-loop iterations) over `ms` of virtual time."""
-        reply = self.request("main_loop", ms=ms)
-        return reply["instructions"], reply["iterations"]
+            result.append(InstructionCount(reply["total"], reply["in_i2c"], reply["iterations"]))
 
     def close(self) -> None:
         if not self._closed and self._process.poll() is None:

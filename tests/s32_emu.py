@@ -480,28 +480,36 @@ class EmulationFault(Exception):
 
 
 class InstructionCount:
-    """Instructions executed from `start` to `stop`: all of them, and those in the joint bus's
-    interrupts (I2C1's event and error handlers, the firmware's Python handler included). Slow (a
-    Python hook on every instruction): for the estimates only."""
+    """Instructions executed from `start` to `stop`: all of them, those in the joint bus's
+    interrupts (I2C1's event and error handlers, the firmware's Python handler included), and the
+    main loop's iterations when the image's ELF is known. An iteration is app.run's
+    `time.ticks_add(next_us, 1000)`: a call of the C function time_ticks_add with delta 1000 (the
+    small int 1000 is 2001 in r1). Slow (a Python hook on every instruction): for the estimates
+    only."""
 
-    def __init__(self, emu: EmulatedS32) -> None:
+    def __init__(self, emu: EmulatedS32, elf: pathlib.Path) -> None:
         self.emu = emu
         target = emu.ql.hw.i2c1
         self.i2c_exceptions = (16 + target.ev_intn, 16 + target.er_intn)  # IPSR holds the exception number
+        self.ticks_add = _symbol(elf, "time_ticks_add.lto_priv.0") if elf.exists() else None
         self.total = 0
         self.in_i2c = 0
+        self.iterations = 0
         self._hook = None
 
     def start(self) -> None:
         from unicorn import UC_HOOK_CODE
-        from unicorn.arm_const import UC_ARM_REG_IPSR
+        from unicorn.arm_const import UC_ARM_REG_IPSR, UC_ARM_REG_R1
 
-        self.total = self.in_i2c = 0
+        self.total = self.in_i2c = self.iterations = 0
+        ticks_add = self.ticks_add
 
         def count(uc, address, size, _):
             self.total += 1
             if uc.reg_read(UC_ARM_REG_IPSR) in self.i2c_exceptions:
                 self.in_i2c += 1
+            elif address == ticks_add and uc.reg_read(UC_ARM_REG_R1) == 2001:
+                self.iterations += 1
 
         self._hook = self.emu.ql.uc.hook_add(UC_HOOK_CODE, count)
         self.emu.ql.uc.ctl_flush_tb()  # blocks translated before the hook would run uncounted
@@ -513,29 +521,9 @@ class InstructionCount:
             self._hook = None
 
 
-def main_loop_instructions(emu: EmulatedS32, elf: pathlib.Path, ms: int) -> tuple[int, int]:
-    """(instructions executed, main-loop iterations) over `ms` of virtual time, interrupts
-    included. An iteration is app.run's `time.ticks_add(next_us, 1000)`: a call of the C
-    function time_ticks_add with delta 1000 (the small int 1000 is 2001 in r1). Slow (a Python
-    hook on every instruction): for the estimate only."""
-    from unicorn import UC_HOOK_CODE
-    from unicorn.arm_const import UC_ARM_REG_R1
-
+def _symbol(elf: pathlib.Path, name: str) -> int:
     symbols = subprocess.run(["arm-none-eabi-nm", str(elf)], capture_output=True, text=True, check=True).stdout
-    ticks_add = next(int(line.split()[0], 16) for line in symbols.splitlines() if line.endswith(" time_ticks_add.lto_priv.0"))
-    counts = [0, 0]
-
-    def count(uc, address, size, _):
-        counts[0] += 1
-        if address == ticks_add and uc.reg_read(UC_ARM_REG_R1) == 2001:
-            counts[1] += 1
-
-    hook = emu.ql.uc.hook_add(UC_HOOK_CODE, count)
-    emu.ql.uc.ctl_flush_tb()  # blocks translated before the hook would run uncounted
-    emu.run_ms(ms)
-    emu.ql.uc.hook_del(hook)
-    emu.ql.uc.ctl_flush_tb()
-    return counts[0], counts[1]
+    return next(int(line.split()[0], 16) for line in symbols.splitlines() if line.endswith(" " + name))
 
 
 # The TMC5130 registers `board` reports (datasheet names; ustepper-model.md section 2's units).
@@ -555,14 +543,14 @@ class Server:
         board     -> the TMC5130's registers (TMC_REGISTERS), VACTUAL, its datagram count, the
                      rotor's position and wall (usteps)
         wall      position (usteps or null), side (+1: stops travel upward, -1 downward)
-        count     on: start (true) or stop (false) counting instructions -> total, in_i2c
-        main_loop ms -> instructions, iterations (needs firmware.elf beside the flash file)
+        count     on: start (true) or stop (false) counting instructions -> total, in_i2c,
+                  iterations (of the main loop: needs firmware.elf beside the flash file, else 0)
     """
 
     def __init__(self, flash: pathlib.Path) -> None:
         self.flash = flash
         self.emu = EmulatedS32(flash)
-        self.count = InstructionCount(self.emu)
+        self.count = InstructionCount(self.emu, flash.with_name("firmware.elf"))
         self._logged = 0
 
     def reply(self, message: dict) -> None:
@@ -611,11 +599,7 @@ class Server:
                 self.count.start()
                 return {}
             self.count.stop()
-            return {"total": self.count.total, "in_i2c": self.count.in_i2c}
-        if op == "main_loop":
-            instructions, iterations = main_loop_instructions(emu, self.flash.with_name("firmware.elf"), request["ms"])
-            emu.run_cycles(0)
-            return {"instructions": instructions, "iterations": iterations}
+            return {"total": self.count.total, "in_i2c": self.count.in_i2c, "iterations": self.count.iterations}
         return {"error": f"no request {op!r}"}
 
     def serve(self) -> int:
