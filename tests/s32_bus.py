@@ -10,7 +10,8 @@ requests. A transaction advances it by its wire time at `speed_hz` (each event, 
 byte or NACK, takes 9 clocks), plus whatever the joint holds SCL stretched while its interrupt
 serves an event; `sleep` runs the emulated S32 for that long. The host's waits (`Joint.home`'s
 polls, `V2Link`'s retries, a test's silence for the deadman) therefore happen in the joint's time,
-deterministically, however slow the emulator is (about 8 s of wall time per emulated second).
+deterministically, however slow the emulator is (6 to 18 s of wall time per emulated second on
+this project's shared two-core machine, by its load).
 """
 
 from __future__ import annotations

@@ -6,16 +6,18 @@ simulated J1; a MOVETOANGLE reaches the TMC5130's XTARGET in usteps and turns th
 the rotor's stop; the deadman stops a move when the host goes quiet; the v2 cycle works.
 
 One boot for the module (about 7 s); the tests run in file order on that joint (homing before the
-moves that need it). Each emulated second takes about 8 s of wall time."""
+moves that need it). Each emulated second takes 6 to 18 s of wall time (by the machine's load)."""
 
 from __future__ import annotations
 
+import json
 import math
 import re
 from collections.abc import Iterator
 
 import pytest
 
+from bioscara import s32flash
 from bioscara.bus.sim import SimBus, SimJointSpec
 from bioscara.config import read_config
 from bioscara.firmware.spec import protocol as P
@@ -27,6 +29,7 @@ from s32_bus import USTEPS_PER_MOTOR_DEGREE, EmulatedS32Bus, missing
 ADDRESS = 0x11  # J1's, from the composed flash's configuration
 HEAP_FREE_TARGET = 12 * 1024
 J1 = read_config(None).joints["j1"]  # the shipped arm's J1: reduction, limits, homing
+DEADMAN_MS = json.loads(s32flash.s32_config("J1"))["deadman_ms"]  # as flashed with the image
 # Registers read as values near 0 rather than byte for byte: the encoder's speed still settles
 # after the boot's orientation check (rpm), and the simulated rotor rests within an AS5600 count
 # (0.088 degrees) of its start, the S32's within a TLE5012B count (0.011 degrees).
@@ -152,14 +155,16 @@ def test_the_deadman_stops_a_move_when_the_host_goes_quiet(bus: EmulatedS32Bus, 
     assert bus.board()["tmc"]["VMAX"] > 0 and joint.is_enabled()
     quiet_us = bus.now_us
     stopped_after_ms = None
-    while bus.now_us - quiet_us < 150_000:
+    while bus.now_us - quiet_us < 3 * DEADMAN_MS * 1000:
         bus.sleep(0.002)
         if stopped_after_ms is None and bus.board()["tmc"]["VMAX"] == 0:
             stopped_after_ms = (bus.now_us - quiet_us) / 1000
     still = bus.board()
     bus.sleep(0.02)
     assert stopped_after_ms is not None, "the motor still turns"
-    assert 50 <= stopped_after_ms <= 50 + 4, f"stopped {stopped_after_ms} ms after the host went quiet (deadman 50 ms)"
+    print(f"S32 deadman: VMAX 0 {stopped_after_ms} ms after the host went quiet (deadman {DEADMAN_MS} ms)")
+    # Within a main-loop iteration and the 2 ms sampling of the driver's register.
+    assert DEADMAN_MS <= stopped_after_ms <= DEADMAN_MS + 4
     assert bus.board()["rotor"] == still["rotor"] and still["VACTUAL"] == 0
     assert "deadman: no I2C traffic" in bus.log
     joint.get_flags()
