@@ -491,7 +491,7 @@ class InstructionCount:
         self.emu = emu
         target = emu.ql.hw.i2c1
         self.i2c_exceptions = (16 + target.ev_intn, 16 + target.er_intn)  # IPSR holds the exception number
-        self.ticks_add = _symbol(elf, "time_ticks_add.lto_priv.0") if elf.exists() else None
+        self.elf = elf
         self.total = 0
         self.in_i2c = 0
         self.iterations = 0
@@ -502,7 +502,7 @@ class InstructionCount:
         from unicorn.arm_const import UC_ARM_REG_IPSR, UC_ARM_REG_R1
 
         self.total = self.in_i2c = self.iterations = 0
-        ticks_add = self.ticks_add
+        ticks_add = _symbol(self.elf, "time_ticks_add.lto_priv.0") if self.elf.exists() else None
 
         def count(uc, address, size, _):
             self.total += 1
