@@ -9,20 +9,21 @@ the same rotor angle, and a free-running motor at a constant speed holds the sam
 same rotor angle turn after turn. So, with s = field - encoder (usteps) and the motor turn cut into
 TURN_BINS bins of the encoder's angle:
 
-    baseline[bin]  d * s in this bin: the mean of the first turn's samples at this speed, then
-                   following any lower sample a quarter of the way, creeping up one ustep a
-                   visit (noise cannot drag it down, a contact grows far faster)
+    baseline[bin]  d * s in this bin: a running mean (halfway per sample) over the first turn
+                   at this speed, then following any lower sample a quarter of the way and
+                   creeping up one ustep a visit (noise cannot drag it down; a contact grows
+                   tens of usteps a turn)
     excess         d * s - baseline[bin]: the median of the last three samples, clipped, then
                    low-passed (2**_LOWPASS_SHIFT samples)
     loaded         excess > limit for `confirm` samples in a row
 
 (d: the direction of motion). Whatever repeats with the rotor angle (the harmonic error, as raw or
 calibrated as it is) cancels; what grows from one turn to the next (a body part squeezed) does not.
-The baseline follows the load angle down at once and never up: a growing contact is never learned
-as free motion. Any change of the driver's speed (acceleration, reversal, a stop) forgets the
-baseline, since the load angle depends on speed; so the first motor turn at a constant speed only
-learns, and a contact that began within it is seen by its growth since. One viper function over
-preallocated arrays; the bin is computed by the caller (small-int arithmetic, no allocation).
+A growing contact is never learned as free motion (the baseline rises one ustep a visit). Any
+change of the driver's speed (acceleration, reversal, a stop) forgets the baseline, since the load
+angle depends on speed; so the first motor turn at a constant speed only learns, and a contact that
+began within it is seen by its growth since (J2 at 10 rpm: about 37 N by then). One viper function
+over preallocated arrays; the bin is computed by the caller (small-int arithmetic, no allocation).
 """
 
 from array import array
