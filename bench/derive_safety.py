@@ -6,9 +6,10 @@ net of `slope` per ustep of travel): run the real firmware through unobstructed 
 joint's configured acceleration and record every sample the firmware's detector is fed (field and
 encoder usteps). The motion set is held out from the benchmark's (bench/safety.py; `overlap`
 lists what both run, and must be empty): velocity steps to 13 rpm .. 98 % of the top speed and back
-through reversals, short position moves at top speed, long moves to other fractions of the bench's
-travel (polled as a host polls them), two streamed sines of other amplitudes and frequencies than
-the bench's (a new velocity every 20 ms) and full-speed reversals at 98 % of the top. It runs with
+through reversals, a crawl of CRAWL_TURNS motor turns each way at 13 rpm, short position moves at
+top speed, long moves to other fractions of the bench's travel (polled as a host polls them), two
+streamed sines of other amplitudes and frequencies than the bench's (a new velocity every 20 ms)
+and full-speed reversals at 98 % of the top. It runs with
 nominal and harsh TLE5012B noise and the Pico backend's AS5600, with 5 % and 120 % of the bench's
 payload corner (the bench runs 0 and 100 %), on SEEDS (the bench: 1 and 11..15), and on every cost
 table of TABLES: the measured one
@@ -26,12 +27,17 @@ least MIN_BASE), and the set kept is the one that detects a blocked rotor soones
 in which the motor really lost position are reported and left out (the detector is right to stop
 those). The largest free lag is printed per cost table: the margin left on each.
 
+Slow-contact detector (load_angle.py, where a joint's config turns it on: J2): the same
+recordings replayed through it; load_limit is the smallest that covers MARGIN x the largest free
+excess held over LOAD_CONFIRM samples with the clip it sets (5/4 of the limit).
+
 Quick stop: the largest deceleration (full steps/s^2, at most the driver's 11636) from which the
 joint stops at top speed without losing position (no pole slip in the simulator),
 times 0.8.
 
     python bench/derive_safety.py            # print the constants
     python bench/derive_safety.py --write    # and store them in firmware/joint/config/J*.json
+    python bench/derive_safety.py J2         # only the joints named
 """
 
 import json
@@ -49,6 +55,7 @@ from harness import SimRig  # noqa: E402
 from joint.motion.fixed import STEPS_Q, to_q  # noqa: E402
 from joint.sim import mechanics  # noqa: E402
 from joint.sim.chip import ChipCosts  # noqa: E402
+from joint.detect.load_angle import LoadAngleDetector  # noqa: E402
 from joint.detect.tracking import TrackingDetector  # noqa: E402
 
 # The arm's configured motion (host/bioscara/data/default.toml) on the motor side.
@@ -63,6 +70,7 @@ JOINTS = {  # top speed rpm, acceleration motor deg/s^2, drive current %, stall 
 # checks), so the bench judges the constants on motion they were not fitted to.
 STEP_SPEEDS = (13.0, 40.0, 90.0, 200.0)  # rpm; the bench's are 10, 30, 60, 120, 250 and its top
 TOP_FRACTION = 0.98  # the fastest step: the bench runs floor(top) and top
+CRAWL_TURNS = 2.5  # motor turns at the slowest step speed, each way (the bench: 3 at 10 rpm)
 SHORT_MOVE_S = 0.5  # short moves of this many seconds at top speed, out and back
 LONG_MOVE_FRACTIONS = (0.7, -0.45, 0.25, 0.0)  # of the bench's long move (its: 1, -1, 0.1, 0)
 STREAMS = ((0.5, 1.0 / 1.5), (0.8, 0.45))  # (amplitude x top speed, Hz); the bench's: (0.6, 0.7)
@@ -87,6 +95,16 @@ SLOPE_MAX = 32  # /256 usteps of encoder error per ustep of travel
 SLOPE_MIN = max(int(math.ceil((a1 + 2.0 * a2) * math.pi / 180.0 * 256.0))
                 for enc in mechanics.ENCODERS.values() for a1, a2 in enc["harmonics"].values())
 DRIVER_MAX_DECEL = 11636.0
+# The slow-contact detector (load_angle.py): confirm and clip are fixed (the clip 5/4 of the limit:
+# the excess of a contact already past the limit when first judged still crosses it within 13
+# samples, and a sample's spike adds at most 5/32 of it), the limit covers MARGIN x every free
+# excess held over LOAD_CONFIRM samples, and at least LOAD_MIN_LIMIT.
+LOAD_CONFIRM = 3
+LOAD_MIN_LIMIT = 16
+
+
+def load_clip(limit):
+    return limit + limit // 4
 
 
 class _Recorder(TrackingDetector):
@@ -105,6 +123,19 @@ class _Recorder(TrackingDetector):
         super().reset()
 
 
+class _LoadRecorder(LoadAngleDetector):
+    """The slow-contact detector, never stopping, keeping the driver's speed it is fed (the field
+    and encoder are _Recorder's: the core feeds both the same sample)."""
+
+    def __init__(self):
+        super().__init__(10 ** 8, 1, 10 ** 8)
+        self.speeds = []
+
+    def update(self, field, encoder, speed):
+        self.speeds.append(speed)
+        return super().update(field, encoder, speed)
+
+
 def _rig(joint, noise, seed, payload_kg=0.0, table="measured"):
     """noise: "nominal" | "harsh" (TLE5012B) | "as5600" (the Pico backend's 12-bit encoder);
     table: a name of TABLES."""
@@ -116,6 +147,7 @@ def _rig(joint, noise, seed, payload_kg=0.0, table="measured"):
     core = rig.joint.core
     core.set_stall_detector("tracking")
     core.track = _Recorder()  # record, never stop
+    core.load = _LoadRecorder()
     return rig
 
 
@@ -196,6 +228,12 @@ def free_motion(args):
         _record(rig, ramp, phases, losses, "reversal at %g rpm" % rpm)
         rig.command("SETRPM", 0.0)
         _record(rig, ramp / 2.0, phases, losses, "stop from %g rpm" % rpm)
+    crawl = step_speeds(joint)[0]  # long enough each way for the slow-contact detector to judge
+    for rpm in (crawl, -crawl):
+        rig.command("SETRPM", rpm)
+        _record(rig, CRAWL_TURNS * 60.0 / crawl + 0.3, phases, losses, "crawl at %g rpm" % rpm, poll_ms=20)
+    rig.command("SETRPM", 0.0)
+    _record(rig, 0.5, phases, losses, "stop from the crawl")
     top = step_speeds(joint)[-1]
     c = bench.CONFIG[joint]
     t_short = 1.5 + 2.0 * JOINTS[joint][0] * 6.0 / accel
@@ -215,7 +253,8 @@ def free_motion(args):
     for rpm in (top, -top, 0.0):
         rig.command("SETRPM", rpm)
         _record(rig, 2.0 * top * 6.0 / accel + 0.3, phases, losses, "step to %g rpm" % rpm, poll_ms=20)
-    return rig.joint.core.track.fed, phases, losses
+    core = rig.joint.core
+    return core.track.fed, phases, losses, core.load.speeds
 
 
 def replay(runs, slope):
@@ -224,7 +263,7 @@ def replay(runs, slope):
     phase, 0 elsewhere, and one 0 separates the runs. Each recording replays in one piece, as the
     firmware ran it."""
     lags, speeds, judged = [], [], []
-    for fed, phases, _ in runs:
+    for fed, phases, _, _ in runs:
         free = bytearray(len(fed))
         for first, end in phases:
             free[first:end] = b"\x01" * (end - first)
@@ -283,6 +322,43 @@ def fit(runs):
     return best[1:]
 
 
+def largest_load_excess(runs, clip, confirm=LOAD_CONFIRM):
+    """The largest excess of the slow-contact detector (clipping each sample at `clip`) held over
+    `confirm` samples in a row in the free phases (usteps), every recording replayed in one piece
+    as the firmware ran it."""
+    worst = 0
+    for fed, phases, _, speeds in runs:
+        free = bytearray(len(fed))
+        for first, end in phases:
+            free[first:end] = b"\x01" * (end - first)
+        det = LoadAngleDetector(10 ** 8, 1, clip)
+        recent = []
+        judged = 0
+        for i, sample in enumerate(fed):
+            if sample is None:
+                det.reset()
+                recent.clear()
+                continue
+            det.update(sample[0], sample[1], speeds[judged])
+            judged += 1
+            recent.append(det.excess if free[i] else -(10 ** 9))
+            del recent[:-confirm]
+            if len(recent) == confirm:
+                worst = max(worst, min(recent))
+    return worst
+
+
+def load_limit(runs):
+    """(limit, clip, largest free excess) of the slow-contact detector: the smallest limit that
+    covers MARGIN x the largest free excess with the clip it sets (load_clip)."""
+    limit = LOAD_MIN_LIMIT
+    while True:
+        worst = largest_load_excess(runs, load_clip(limit))
+        if limit > MARGIN * worst:
+            return limit, load_clip(limit), worst
+        limit = int(MARGIN * worst) + 1
+
+
 def keeps_position(joint, decel):
     top, _, _, _ = JOINTS[joint]
     rig = _rig(joint, "nominal", SEEDS[0])
@@ -320,26 +396,31 @@ def main(argv):
     for joint in JOINTS:
         if overlap(joint):
             sys.exit("%s: the derivation runs what the bench runs: %s" % (joint, overlap(joint)))
-    for joint in JOINTS:
+    chosen = [joint for joint in JOINTS if joint in argv] or list(JOINTS)
+    for joint in chosen:
         todo = cases(joint)
         if processes > 1:
             with multiprocessing.get_context("fork").Pool(processes) as pool:
                 runs = pool.map(free_motion, todo, chunksize=1)
         else:
             runs = [free_motion(case) for case in todo]
-        losses[joint] = sorted({phase for _, _, lost in runs for phase in lost})
+        losses[joint] = sorted({phase for _, _, lost, _ in runs for phase in lost})
         base, tau, cap, slope, confirm, worst = fit(runs)
         decel = stop_deceleration(joint)
         results[joint] = {"track_base": base, "track_tau_ms": tau, "track_cap": cap, "track_slope_q8": slope,
                           "track_confirm": confirm, "stop_deceleration": float(decel)}
         print("%s: %d runs, %d free phases, largest free lag %d usteps net of the slope -> track_base %d, "
               "track_tau_ms %d, track_cap %d, track_slope_q8 %d, track_confirm %d; stop_deceleration %d "
-              "full steps/s^2" % (joint, len(runs), sum(len(p) for _, p, _ in runs), worst, base, tau, cap, slope,
+              "full steps/s^2" % (joint, len(runs), sum(len(p) for _, p, _, _ in runs), worst, base, tau, cap, slope,
                                   confirm, decel))
+        limit, clip, excess = load_limit(runs)
+        print("%s: slow-contact detector: largest free excess %d usteps over %d samples -> load_limit %d, "
+              "load_clip %d" % (joint, excess, LOAD_CONFIRM, limit, clip))
+        results[joint]["load"] = (limit, clip)
         for table in TABLES:  # the margin left on each cost table (the speed allowance aside)
             mine = [run for case, run in zip(todo, runs) if case[4] == table]
             print("  %s: largest free lag %d usteps (base %d)" % (table, largest_lag(mine, slope, confirm), base))
-    for joint in JOINTS:
+    for joint in chosen:
         if losses[joint]:
             print("%s lost position in %d kinds of phase (real stalls, excluded): %s"
                   % (joint, len(losses[joint]), ", ".join(losses[joint])))
@@ -354,6 +435,9 @@ def main(argv):
             cfg["stall"]["track_confirm"] = values["track_confirm"]
             cfg["stall"]["track_window"] = WINDOW
             cfg["stall"]["track_sample_ms"] = SAMPLE_MS
+            if cfg["stall"].get("load_limit"):  # the joints that need it (J2: docs/safety.md)
+                cfg["stall"]["load_limit"], cfg["stall"]["load_clip"] = values["load"]
+                cfg["stall"]["load_confirm"] = LOAD_CONFIRM
             tmp = path + ".tmp"
             with open(tmp, "w") as f:
                 json.dump(cfg, f, indent=2)

@@ -11,7 +11,8 @@ the arm's mechanics, firmware.sim.mechanics, and the shipped J1-J4 configuration
   named by issue 11) into the time until the obstacle first overpowers the motor (its first pole
   slip: mechanics) and from there to STALL (the detector).
 * false stalls: unobstructed moves at the configured limits (long moves, reversals, a streamed
-  velocity trajectory at 50 Hz), per joint x payload x noise x detector: any STALL counts.
+  velocity trajectory at 50 Hz, a crawl of three motor turns each way at 10 rpm), per joint x
+  payload x noise x detector: any STALL counts.
 * homing: HOME with the shipped parameters into the joint's end stop, per joint x payload x noise x
   stop; J2 with a payload first freewheels as it does after boot. Success = homed within the time
   limit; false homed = "homed" with the reported position off the truth by more than the joint's
@@ -79,11 +80,13 @@ SPEEDS = (10.0, 30.0, 60.0, 120.0, 250.0)
 # (amplitude a fraction of the top speed, Hz) that ends in steps to +-top.
 MOVE_FRACTIONS = (1.0, -1.0, 0.1, 0.0)
 STREAM = (0.6, 0.7)
+CRAWL_TURNS = 3  # and a crawl at SPEEDS[0], this many motor turns each way
 NAN = float("nan")
 NOISES = ("nominal", "harsh", "as5600")
 CONTACT_NOISES = ("nominal", "harsh")
 # Seeds of the contact matrix: none of them is a seed bench/derive_safety.py derives on.
 CONTACT_SEEDS = (11, 12, 13, 14, 15)
+CALIBRATED_HARMONICS = 0.1  # the encoder's harmonic error left after calibration (issue 20)
 TRANSIENT_S = 0.5  # s after first contact: ISO/TS 15066's transient phase of a clamping contact
 CHIP = None  # the bus's cost table (None: the repository's); main() sets a perturbed one
 
@@ -121,13 +124,15 @@ class Rig:
 
     def __init__(self, joint: str, detector: str = "original", payload_kg: float = 0.0, noise: str = "nominal",
                  seed: int = 1, low_deg: float | None = None, high_deg: float | None = None,
-                 weak_magnet: bool = False) -> None:
+                 weak_magnet: bool = False, harmonics: float = 1.0) -> None:
         self.name = joint
         self.clock = VirtualClock()
-        # noise: "nominal" | "harsh" (TLE5012B) | "as5600" (the Pico backend's 12-bit encoder)
+        # noise: "nominal" | "harsh" (TLE5012B) | "as5600" (the Pico backend's 12-bit encoder);
+        # harmonics: the fraction of the encoder's harmonic error left (0.1: what calibration leaves)
         encoder = "as5600" if noise == "as5600" else "tle5012b"
-        self.stepper = SimStepper(self.clock, seed=seed, **M.stepper_kwargs(
-            joint, payload_kg, "nominal" if noise == "as5600" else noise, encoder))
+        kwargs = M.stepper_kwargs(joint, payload_kg, "nominal" if noise == "as5600" else noise, encoder)
+        kwargs["enc_harmonics"] = tuple(harmonics * a for a in kwargs["enc_harmonics"])
+        self.stepper = SimStepper(self.clock, seed=seed, **kwargs)
         if weak_magnet:
             # The AS5600 says so in its STATUS (the HOME refuses at once); the TLE5012B-modelled
             # encoder's status is not read: its weak magnet meets the noise check alone.
@@ -292,6 +297,7 @@ class Contact:
     region: str  # a key of mechanics.ISO_TS_15066
     seed: int = CONTACT_SEEDS[0]
     detector: str = "tracking"
+    harmonics: float = 1.0  # the fraction of the encoder's harmonic error left (Rig)
 
 
 def contact(s: Contact) -> dict:
@@ -304,7 +310,7 @@ def contact(s: Contact) -> dict:
     after it (the motor pushing) against the quasi-static limit; `over` says whether either was
     exceeded, `force_n` is the largest force at any time."""
     payload = PAYLOAD[s.joint] if s.payload else 0.0
-    rig = Rig(s.joint, s.detector, payload, s.noise, s.seed)
+    rig = Rig(s.joint, s.detector, payload, s.noise, s.seed, harmonics=s.harmonics)
     rig.enable()
     c = CONFIG[s.joint]
     accel_rpm_s = math.degrees(c["acc"] * c["n"]) / 6.0
@@ -355,7 +361,7 @@ def contact(s: Contact) -> dict:
 @dataclass(frozen=True)
 class FreeMove:
     joint: str
-    kind: str  # "moves" | "stream"
+    kind: str  # "moves" | "stream" | "crawl"
     payload: bool
     noise: str
     detector: str
@@ -375,15 +381,23 @@ def free_move(s: FreeMove) -> dict:
     # by its (lag, threshold) changing.
     worst = 0.0
     recent: list[tuple[int, int]] = []
+    # The slow-contact detector's (where the joint has one): its excess over its limit, the
+    # smallest over its last `confirm` samples (one a millisecond here: a 5 ms sample is read 5 times).
+    load_worst = 0.0
+    load_recent: list[int] = []
 
     def stalled() -> bool:
-        nonlocal stalls, lost, worst
+        nonlocal stalls, lost, worst, load_worst
         track = core.track
         if s.detector == "tracking" and track.threshold > 0:
             if not recent or recent[-1] != (track.lag, track.threshold):
                 recent.append((track.lag, track.threshold))
                 del recent[:-track.confirm]
                 worst = max(worst, min(lag / thr for lag, thr in recent))
+        if s.detector == "tracking" and core.load is not None:
+            load_recent.append(core.load.excess)
+            del load_recent[:-core.load.confirm]
+            load_worst = max(load_worst, min(load_recent) / core.load.limit)
         elif s.detector == "original" and core.stall.threshold > 0:
             worst = max(worst, core.stall.filtered / core.stall.threshold)
         if not rig.flags & P.FLAG_STALL:
@@ -393,7 +407,14 @@ def free_move(s: FreeMove) -> dict:
         else:
             stalls += 1
         return True
-    if s.kind == "moves":
+    if s.kind == "crawl":
+        # CRAWL_TURNS motor turns each way at the slowest speed: the slow-contact detector judges
+        # the load angle against its baseline from the second turn on.
+        for rpm in (SPEEDS[0], -SPEEDS[0], 0.0):
+            rig.command("SETRPM", rpm)
+            if rig.run(CRAWL_TURNS * 60.0 / SPEEDS[0] + 0.3 if rpm else 0.5, until=stalled):
+                break
+    elif s.kind == "moves":
         span = move_span_deg(s.joint)
         t_move = span / math.degrees(c["vel"] * c["n"]) + 2 * c["vel"] / c["acc"] + 0.5
         for target in (span * f for f in MOVE_FRACTIONS):
@@ -415,7 +436,7 @@ def free_move(s: FreeMove) -> dict:
                 rig.command("SETRPM", rpm)
                 if rig.run(2 * top / (math.degrees(c["acc"] * c["n"]) / 6.0) + 0.3, until=stalled):
                     break
-    return {"false_stalls": stalls, "lost_steps": lost, "worst_ratio": worst}
+    return {"false_stalls": stalls, "lost_steps": lost, "worst_ratio": worst, "load_worst_ratio": load_worst}
 
 
 @dataclass(frozen=True)
@@ -585,6 +606,10 @@ def matrix(full: bool = True, detectors: Iterable[str] = DETECTORS, every_seed: 
                       Deadman("J1", "velocity", "original"), Deadman("J1", "setcurrent0", "ours"),
                       Deadman("J2", "position", "ours"),
                       Contact("J2", 250.0, 1, True, "harsh", "hand"), Contact("J3", 120.0, -1, False, "nominal", "abdomen")]
+        # J2's slow soft contact, raw and calibrated encoder, and the crawl its detector judges.
+        scenarios += [Contact("J2", 10.0, 1, True, "harsh", "abdomen", harmonics=h)
+                      for h in (1.0, CALIBRATED_HARMONICS)]
+        scenarios += [FreeMove("J2", "crawl", True, "harsh", det) for det in dets if det == "tracking"]
         return scenarios
     for joint in JOINTS:
         for rpm in speeds(joint):
@@ -593,7 +618,7 @@ def matrix(full: bool = True, detectors: Iterable[str] = DETECTORS, every_seed: 
                     for noise in NOISES:
                         for det in dets:
                             scenarios.append(Collision(joint, rpm, stop, payload, noise, det))
-        for kind in ("moves", "stream"):
+        for kind in ("moves", "stream", "crawl"):
             for payload in (False, True):
                 for noise in NOISES:
                     for det in dets:
@@ -632,6 +657,11 @@ def contacts(every_seed: bool = False) -> list[Contact]:
                             seeds = CONTACT_SEEDS if every_seed else (CONTACT_SEEDS[i % len(CONTACT_SEEDS)],)
                             i += 1
                             out += [Contact(joint, rpm, direction, payload, noise, region, seed) for seed in seeds]
+    # J2's slow soft contact again with 10 % of the encoder's harmonic error, what calibration
+    # leaves: the slow-contact detector's figure with and without it.
+    out += [Contact("J2", 10.0, direction, payload, noise, "abdomen", seed, harmonics=CALIBRATED_HARMONICS)
+            for direction in (1, -1) for payload in (False, True) for noise in CONTACT_NOISES
+            for seed in (CONTACT_SEEDS if every_seed else CONTACT_SEEDS[:1])]
     return out
 
 
@@ -715,6 +745,9 @@ def figures(results: list[tuple], available: Iterable[str]) -> list[tuple[str, f
         # threshold (1: a false stall), with constants derived on other seeds.
         ratios = [r["worst_ratio"] for _, r in free if "worst_ratio" in r]
         out.append((prefix + "free_motion_worst_fraction_of_threshold", max(ratios) if ratios else NAN))
+        if det == "tracking":  # the slow-contact detector beside it (load_angle.py; J2)
+            loads = [r["load_worst_ratio"] for _, r in free if "load_worst_ratio" in r]
+            out.append(("safety.load_angle_free_motion_worst_fraction_of_limit", max(loads) if loads else NAN))
         # Not a name of issue 11: moves at the shipped limits where the motor itself lost steps.
         out.append((prefix + "lost_steps_unobstructed", sum(r["lost_steps"] for _, r in free)
                     + sum(r["lost_steps"] for _, r in runs)))
@@ -736,6 +769,8 @@ def figures(results: list[tuple], available: Iterable[str]) -> list[tuple[str, f
         out.append(("safety.homing_no_stop_travel_ratio_max",
                     max(r.get("travel_deg", NAN) / _homing_travel_deg(s.joint) for s, r in lost) if lost else NAN))
     touched = [(s, r) for s, r in results if isinstance(s, Contact) and not r["lost_steps"]]
+    calibrated = [(s, r) for s, r in touched if s.harmonics != 1.0]
+    touched = [(s, r) for s, r in touched if s.harmonics == 1.0]
     if touched:
         # ISO/TS 15066 in newtons: the largest force each region took from each joint until it
         # stopped pushing, and how many contacts went past the region's quasi-static limit.
@@ -747,9 +782,16 @@ def figures(results: list[tuple], available: Iterable[str]) -> list[tuple[str, f
         # Stricter, for reference: contacts whose force ever passed the quasi-static limit.
         out.append(("safety.contacts_over_quasi_static_limit_at_any_time",
                     sum(r["force_n"] > r["limit_n"] for _, r in touched)))
-        quasi = [r["quasi_static_n"] for s, r in touched if s.joint == "J2" and s.rpm == 10.0
-                 and s.region == "abdomen"]
-        out.append(("safety.j2_soft_contact_10rpm_force_n_max", max(quasi) if quasi else NAN))
+        # J2's soft contact at 10 rpm: the most it pushed after the transient phase, and the force
+        # when the joint said STALL (nan if it never did: then it pushed until the pole slip), with
+        # the encoder's harmonic error as shipped and with what calibration leaves of it.
+        for suffix, runs in (("", touched), (".harmonics_10pct", calibrated)):
+            slow = [r for s, r in runs if s.joint == "J2" and s.rpm == 10.0 and s.region == "abdomen"]
+            out.append(("safety.j2_soft_contact_10rpm_force_n_max" + suffix,
+                        max(r["quasi_static_n"] for r in slow) if slow else NAN))
+            at_stall = [r["stall_force_n"] for r in slow]
+            out.append(("safety.j2_soft_contact_10rpm_stall_force_n_max" + suffix,
+                        max(at_stall) if at_stall and all(f == f for f in at_stall) else NAN))
         out.append(("safety.contacts_false_stalls", sum(r["false_stall"] for s, r in results if isinstance(s, Contact))))
         out.append(("safety.contacts_lost_steps_before_contact",
                     sum(r["lost_steps"] for s, r in results if isinstance(s, Contact))))

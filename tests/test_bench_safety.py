@@ -86,6 +86,23 @@ def test_the_tracking_detector_stops_a_slow_rigid_collision_right_after_the_moto
     assert r["slip_ms"] == r["slip_ms"] and r["latency_ms"] - r["slip_ms"] <= 50.0, r
 
 
+def test_j2s_soft_contact_at_10_rpm_is_stopped_under_50_newtons_with_the_raw_and_the_calibrated_encoder(
+        reduced) -> None:
+    """Issue 20: the slow-contact detector (load_angle.py) stops J2 pressing an abdomen at 10 rpm
+    before 50 N, with the encoder's harmonic error as shipped and with 10 % of it; the tracking
+    detector alone let it push until the pole slip (90 N)."""
+    results, available = reduced
+    if "tracking" not in available:
+        pytest.skip("no tracking detector in this firmware")
+    for harmonics in (1.0, S.CALIBRATED_HARMONICS):
+        r = _result(results, S.Contact("J2", 10.0, 1, True, "harsh", "abdomen", harmonics=harmonics))
+        assert r["detected"] and r["stall_force_n"] <= 50.0 and r["quasi_static_n"] <= 50.0, (harmonics, r)
+    figures = dict(S.figures(results, available))
+    assert figures["safety.j2_soft_contact_10rpm_stall_force_n_max"] <= 50.0
+    assert figures["safety.j2_soft_contact_10rpm_stall_force_n_max.harmonics_10pct"] <= 50.0
+    assert 0.0 < figures["safety.load_angle_free_motion_worst_fraction_of_limit"] < 1.0
+
+
 def test_unobstructed_moves_raise_no_stall(reduced) -> None:
     results, available = reduced
     if "tracking" not in available:

@@ -139,6 +139,17 @@ def test_stall_sampling_with_the_tracking_detector_allocates_nothing():
     assert not j.core.flags & P.FLAG_STALL
 
 
+def test_stall_sampling_with_the_slow_contact_detector_allocates_nothing():
+    j = _shipped("J2")  # the joint that ships it (load_angle.py)
+    assert j.core.load is not None
+    j.command("ENABLESTALLGUARD", 12)
+    j.command("SETRPM", 30.0)
+    j.tick(6000, poll_every=10)  # past a motor turn: the detector judges against its baseline
+    _zero(j, "turning with the slow-contact detector judging")
+    assert j.core.load._baseline[0] != 0 and j.core.load._baseline[-1] != 0, "a whole turn must be learned"
+    assert not j.core.flags & P.FLAG_STALL
+
+
 def test_stall_sampling_with_the_original_detector_allocates_nothing():
     j = _moving()  # the schema default: a joint without a config file
     assert j.cfg.stall.detector == "original"

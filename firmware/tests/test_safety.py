@@ -1,7 +1,9 @@
-"""Deadman per mode whatever the flags say, refused frames, homing limits, the tracking detector."""
+"""Deadman per mode whatever the flags say, refused frames, homing limits, the tracking and
+slow-contact detectors."""
 
 from joint.spec import protocol as P
 from joint.detect.homing import TRAVEL_LIMIT
+from joint.detect.load_angle import LoadAngleDetector
 from joint.detect.tracking import TrackingDetector
 from joint.motion.hal import MAGNET_MISSING, MAGNET_OK, MAGNET_STRONG, MAGNET_WEAK
 from harness import Rig
@@ -292,6 +294,64 @@ def test_the_slope_allowance_passes_the_encoders_harmonic_error_and_catches_a_bl
             if sloped.update(field & 0x3FFFFFFF, rotor + error(rotor)) and stalled_at is None:
                 stalled_at = k
         assert stalled_at is not None and stalled_at <= 3 + 100 // (step - step * 12 // 256) + 1, stalled_at
+
+
+def _harmonic_error(x):
+    """The encoder's error at rotor angle x (usteps): 1x + 2x per turn, 270 usteps overall."""
+    import math
+    return int(160 * math.sin(2 * math.pi * x / 51200) + 110 * math.sin(4 * math.pi * x / 51200 + 1))
+
+
+def test_the_load_angle_detector_cancels_the_harmonic_error_and_catches_a_load_growing_over_a_turn():
+    for step in (43, 4900):  # usteps per 5 ms sample: 10 and 1150 rpm
+        det = LoadAngleDetector(24, 3, 48)
+        rotor, load, samples_per_turn = 1000, 40, 51200 // step
+        # Free running (three turns, and long enough for a fast motor's samples to have visited
+        # every bin): the error sweeps its 270 usteps.
+        for k in range(max(3 * samples_per_turn, 2000)):
+            rotor += step
+            field = rotor + load
+            assert not det.update(field & 0x3FFFFFFF, (rotor + _harmonic_error(rotor)) & 0x3FFFFFFF, step), (step, k)
+        loaded_at = None
+        for k in range(2 * samples_per_turn):  # a soft contact: 60 usteps more load angle per turn
+            rotor += step
+            field = rotor + load + 60 * k // samples_per_turn
+            if det.update(field, rotor + _harmonic_error(rotor), step) and loaded_at is None:
+                loaded_at = k
+        # 24 usteps of growth take 0.4 turn; within-bin harmonic error and the filters, the rest.
+        assert loaded_at is not None and loaded_at <= samples_per_turn // 2 + 12, (step, loaded_at)
+
+
+def test_the_load_angle_detector_forgets_its_baseline_when_the_speed_changes():
+    det = LoadAngleDetector(24, 3, 48)
+    rotor = 0
+    for step, load in ((43, 40), (86, 140), (-43, -60)):  # each speed its own load angle
+        for k in range(3 * 51200 // abs(step)):
+            rotor += step
+            assert not det.update(rotor + load, rotor + _harmonic_error(rotor), step), (step, k)
+        assert det.update(rotor + load, rotor, 0) is False and det.excess == 0  # standing: nothing judged
+
+
+def test_a_joint_configured_for_the_slow_contact_detector_runs_and_says_so_on_an_image_without_it():
+    """The S32 image leaves load_angle.py out (flash): J2's configuration still boots there."""
+    import sys
+    from joint.config import schema as config
+    cfg = config.load("firmware/joint/config/J2.json")
+    assert cfg.valid and cfg.stall.load_limit > 0, cfg.errors
+    assert Rig(cfg=cfg).core.load is not None
+    name = LoadAngleDetector.__module__  # joint.detect.load_angle, whichever package holds it
+    kept = sys.modules.pop(name)
+    package = sys.modules[name[:name.rindex(".")]]
+    attribute = package.__dict__.pop("load_angle", None)
+    sys.modules[name] = None  # CPython's import of a module the image does not hold: ImportError
+    try:
+        rig = Rig(cfg=cfg)
+    finally:
+        sys.modules[name] = kept
+        if attribute is not None:
+            package.load_angle = attribute
+    assert rig.core.load is None and rig.core.ready
+    assert any("no slow-contact detector in this image" in line for line in rig.lines), rig.lines
 
 
 # ---- on the shipped configurations and the simulated arm's mechanics ----

@@ -67,6 +67,12 @@ SCHEMA = (
         ("track_window", _INT, 20, 1, 64),  # samples the lag is measured over
         ("track_confirm", _INT, 2, 1, 64),  # samples in a row above the threshold
         ("track_sample_ms", _INT, 5, 1, 100),
+        # load_angle.py, sampled with the tracking detector: a slow contact's load angle over the
+        # same rotor angle one motor turn earlier, usteps (0: off), for this many samples in a row,
+        # each sample adding at most load_clip usteps (an encoder spike).
+        ("load_limit", _INT, 0, 0, 100000),
+        ("load_confirm", _INT, 3, 1, 64),
+        ("load_clip", _INT, 64, 1, 100000),
     )),
     ("homing", (
         # HOME ends only when the encoder lags the field by this much for `confirm` samples

@@ -76,6 +76,13 @@ def init(core, hal, clock, cfg, log, critical):
     st = cfg.stall
     core.track = TrackingDetector(st.track_base, st.track_tau_ms, st.track_window, st.track_confirm,
                                   st.track_sample_ms, st.track_cap, st.track_slope_q8)
+    core.load = None  # the slow-contact detector, on joints that configure it (imported then only)
+    if st.load_limit:
+        try:
+            from ..detect.load_angle import LoadAngleDetector
+            core.load = LoadAngleDetector(st.load_limit, st.load_confirm, st.load_clip)
+        except ImportError:  # the S32 image leaves it out (flash): the drive current bounds contacts
+            log.warn("stall.load_limit: no slow-contact detector in this image")
     core.detector = DETECTOR_NAMES.index(st.detector) if st.detector in DETECTOR_NAMES else 0
     core.homing = HomingMonitor(cfg.homing, st)
     # Deadman: 0 = the original's (velocity only, cfg.deadman_ms); WATCHDOG sets every mode.

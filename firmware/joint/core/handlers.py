@@ -34,7 +34,7 @@ class Handlers:
         self.qd_set = 0
         self.positioning = False
         self._safe_pending = False
-        self.track.reset()
+        self._forget_motion()
 
     @micropython.native
     def _set_rpm(self, q, off):
@@ -91,7 +91,7 @@ class Handlers:
     def _enable_stallguard(self, q, off):
         self.stall.sensitivity = q[off]
         self.stall.reset()
-        self.track.reset()
+        self._forget_motion()
         self.stallguard = True
         # The detectors' deadlines stood still while they were off: both due now.
         self._next_stall_ms = self._next_track_ms = self._next_sample_ms = self.clock.ticks_ms()
@@ -101,7 +101,7 @@ class Handlers:
 
     def _clear_stall(self, q, off):
         self.stall.reset()
-        self.track.reset()
+        self._forget_motion()
 
     def _set_brake_mode(self, q, off):
         self.hal.set_brake_mode(q[off])

@@ -35,7 +35,13 @@ class Supervisor:
         """Select the stall detector by name ("original" or "tracking")."""
         self.detector = DETECTOR_NAMES.index(name)
         self.stall.reset()
+        self._forget_motion()
+
+    def _forget_motion(self):
+        """The tracking and slow-contact detectors start afresh (a stop, a re-arm, a re-zero)."""
         self.track.reset()
+        if self.load is not None:
+            self.load.reset()
 
     def _encoder_usteps(self):
         """The encoder angle in usteps (int): degrees Q12 x 51200 / 360 / 4096 = 5 / 144, exact on
@@ -67,18 +73,28 @@ class Supervisor:
                           % (self.stall.filtered, self.stall.threshold))
 
     def _check_tracking(self):
-        """The tracking detector, every stall.track_sample_ms."""
+        """The tracking detector and, where configured, the slow-contact one (load_angle.py),
+        every stall.track_sample_ms."""
         track = self.track
+        load = self.load
         if self.detector != TRACKING or not self.stallguard or self.flags & (FLAG_STALL | FLAG_BUSY):
-            track.reset()
+            self._forget_motion()
             return
         hal = self.hal
         rearms = self._ftab[FTAB_REARMS]
-        if track.update(hal.field_position(), self._encoder_usteps()) and self._halt(FLAG_STALL, rearms=rearms):
+        field = hal.field_position()
+        encoder = self._encoder_usteps()
+        if track.update(field, encoder) and self._halt(FLAG_STALL, rearms=rearms):
             hal.stop(True)
             self.log.warn("stall detected (encoder %d usteps behind the field, threshold %d)"
                           % (track.lag, track.threshold))
             track.reset()
+        elif load is not None and load.update(field, encoder, hal.driver_rpm()) and self._halt(
+                FLAG_STALL, rearms=rearms):
+            hal.stop(True)
+            self.log.warn("contact detected (load angle %d usteps over its free-running one, limit %d)"
+                          % (load.excess, load.limit))
+            load.reset()
 
     def _motion_active(self):
         """What the deadman guards: in watchdog mode every motion the host commanded, and the ramp

@@ -186,7 +186,7 @@ class Tasks:
         struct.pack_into("<B", self._cache[HOMINGRESULT], 0, outcome)
         hal.set_current(self.drive_current)
         hal.set_hold_current(self.hold_current)
-        self.track.reset()
+        self._forget_motion()
 
     def _rest_check(self):
         """The homing's settle, doubling as a check in its second half (the first lets a link that
