@@ -112,6 +112,9 @@ class RecordingMotor(MotorHAL):
         self._record("magnet")
         return self.magnet_health
 
+    def encoder_zero(self):
+        return 0
+
 
 class Rig:
     """One joint controller behind a fake I2C target, with a recording motor, in virtual time."""

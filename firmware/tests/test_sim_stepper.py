@@ -306,7 +306,8 @@ def test_set_home_zeroes_encoder_and_driver_and_leaves_the_rotor():
     assert abs(m.angle_moved()) < 0.03 and abs(m.rotor_angle() - rotor) < 0.01
     m.move_to_angle(-10.0)
     _run(clock, m, 1.0, 5000)
-    assert abs(m.angle_moved() + 10.0) < 0.03
+    # one noisy reading: 5 counts (0.055 deg) is the 0.7-count noise at 6 sigma plus the count's floor
+    assert abs(m.angle_moved() + 10.0) < 0.055
     assert abs(m.rotor_angle() - (rotor - 10.0)) < 0.6, "up to the encoder's systematic error"
 
 

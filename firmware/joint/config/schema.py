@@ -16,6 +16,11 @@ ADDRESSES = {"J1": 0x11, "J2": 0x12, "J3": 0x13, "J4": 0x14}
 BACKENDS = ("pico", "s32", "sim")
 S32_JOINT_BUS = 1  # the uStepper S32's joint bus is I2C1 (PB8 SCL, PB9 SDA), pins fixed
 SAFE_ACTIONS = ("hold", "freewheel")
+# encoder.correction (`bioscara calibrate`): the encoder's error over its turn, motor millidegrees at
+# equally spaced angles from the sensor's zero; within 5 degrees, twice the TLE5012B's worst case
+# over temperature (a larger error is a misplaced magnet, which no table should hide).
+CORRECTION_SIZES = (16, 32, 64)
+CORRECTION_LIMIT_MDEG = 5000
 
 _INT = 0
 _NUM = 1
@@ -123,7 +128,7 @@ def parse(data, source=CONFIG_FILE):
     if type(data) is not dict:
         cfg.errors.append("%s: the top level must be a JSON object" % source)
         data = {}
-    top_keys = ["motor"]
+    top_keys = ["motor", "encoder"]
     for section, specs in SCHEMA:
         raw = data
         if section:
@@ -166,7 +171,39 @@ def parse(data, source=CONFIG_FILE):
     if stall.sample_time >= stall.time_constant:
         cfg.errors.append("%s: stall.sample_time must be below stall.time_constant" % source)
     _parse_motor(cfg, data.get("motor", {"backend": "sim"}))
+    _parse_encoder(cfg, data.get("encoder", {}))
     return cfg
+
+
+def _parse_encoder(cfg, encoder):
+    """encoder.correction, the calibration table; a bad one is an error and the table is not used."""
+    table = ()
+    if type(encoder) is not dict:
+        cfg.errors.append("%s: encoder must be an object" % cfg.source)
+        encoder = {}
+    for key in encoder:
+        if key != "correction":
+            cfg.errors.append("%s: unknown key encoder.%s" % (cfg.source, key))
+    raw = encoder.get("correction", [])
+    if type(raw) is not list or len(raw) not in CORRECTION_SIZES + (0,):
+        cfg.errors.append("%s: encoder.correction must be a list of %s integers (motor millidegrees), got %s"
+                          % (cfg.source, " or ".join(str(n) for n in CORRECTION_SIZES), _describe(raw)))
+    elif not all(type(v) is int and -CORRECTION_LIMIT_MDEG <= v <= CORRECTION_LIMIT_MDEG for v in raw):
+        bad = [v for v in raw if not (type(v) is int and -CORRECTION_LIMIT_MDEG <= v <= CORRECTION_LIMIT_MDEG)][0]
+        cfg.errors.append("%s: encoder.correction holds %r: each entry must be an integer within +-%d (motor "
+                          "millidegrees)" % (cfg.source, bad, CORRECTION_LIMIT_MDEG))
+    elif raw and type(cfg.motor) is dict and cfg.motor.get("backend") == "pico":
+        cfg.errors.append("%s: encoder.correction: the pico backend does not apply an encoder correction yet"
+                          % cfg.source)
+    else:
+        table = tuple(raw)
+    cfg.encoder = Section({"correction": table})
+
+
+def _describe(value):
+    if type(value) is list:
+        return "%d entries" % len(value)
+    return "%r" % (value,) if type(value) in (int, float, bool, str) else "a JSON " + type(value).__name__
 
 
 def _parse_motor(cfg, motor):

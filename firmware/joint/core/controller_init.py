@@ -165,7 +165,9 @@ def _boot(core):
     freewheel. This generator is the last holder of this module: it goes once the task ends."""
     hal = core.hal
     boot = core.cfg.boot
+    hal.set_encoder_correction(core.cfg.encoder.correction)
     hal.begin()
+    core.store_encoder_zero()
     hal.enable_closed_loop()
     core.closed_loop = True
     accel = to_q(boot.max_acceleration, STEPS_Q)

@@ -20,6 +20,8 @@ allocate on the board. A backend that models in floats converts at its boundary
 (sim/fixed_hal.py).
 """
 
+from array import array
+
 FULL_STEPS_PER_REV = 200
 MICROSTEPS = 256
 USTEPS_PER_REV = FULL_STEPS_PER_REV * MICROSTEPS
@@ -35,7 +37,49 @@ MAGNET_STRONG = 3  # too close: the sensor saturates
 class MotorHAL:
     """Interface of a joint motor backend. Subclasses implement every method but the closed loop's
     switch and threshold, whose setters here store `_closed_loop` and `_threshold` (usteps) for the
-    subclass's update() to read; the subclass sets both at construction (off, 10)."""
+    subclass's update() to read; the subclass sets both at construction (off, 10), and the encoder
+    correction (`set_encoder_correction`, `_corrected`), which needs `_encoder_cpr`, the encoder's
+    counts per turn (a power of two)."""
+
+    _encoder_table = None  # the calibrated error table in counts (None: the sensor as it reads)
+    _encoder_shift = 0
+
+    def set_encoder_correction(self, millideg):
+        """Subtract the encoder's calibrated error from every reading from now on (call before
+        begin()): `millideg`, the error in motor millidegrees at len(millideg) equally spaced
+        angles of the sensor's own turn from its zero (a power of two, at most the counts per
+        turn; empty: no correction), linearly interpolated between them. Boot only: allocates."""
+        n = len(millideg)
+        if not n:
+            self._encoder_table = None
+            return
+        cpr = self._encoder_cpr
+        table = array("h", bytes(2 * n + 2))
+        for i in range(n):
+            table[i] = (millideg[i] * cpr + (180000 if millideg[i] >= 0 else -180000)) // 360000
+        table[n] = table[0]
+        shift = 0
+        while n << shift < cpr:
+            shift += 1
+        self._encoder_table = table
+        self._encoder_shift = shift
+
+    def _corrected(self, raw):
+        """A reading in counts (the sensor's angle, or that angle unwrapped over turns) less the
+        calibrated error at it; allocation-free (small ints)."""
+        table = self._encoder_table
+        if table is None:
+            return raw
+        shift = self._encoder_shift
+        within = raw & (self._encoder_cpr - 1)
+        i = within >> shift
+        low = table[i]
+        return raw - low - (((table[i + 1] - low) * (within & ((1 << shift) - 1))) >> shift)
+
+    def encoder_zero(self):
+        """The sensor's own angle (corrected), degrees Q12 in 0..360, where angle_moved() is 0:
+        the frame of the encoder correction table."""
+        raise NotImplementedError
 
     def begin(self):
         """Power-on setup: closed-loop mode with 200 full steps, closed loop still inactive."""

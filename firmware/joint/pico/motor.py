@@ -300,6 +300,11 @@ class PicoStepper(MotorHAL):
         count = self._es[_ES_COUNT]
         return count * 360 if -2982616 < count < 2982616 else (_LIMIT if count > 0 else -_LIMIT)
 
+    def encoder_zero(self):
+        """The sensor's angle at home, Q12 degrees (360 a count): the last reading less the count."""
+        enc = self._enc
+        return ((enc.raw - enc.count) & 0xFFF) * 360
+
     def encoder_rpm(self):
         """rpm in Q16: counts/s (Q8) * 60 / 4096 * 256 (|counts/s| < 280 000 keeps it small)."""
         return (self._vs[6] * 15) >> 2  # the estimator's value

@@ -25,6 +25,8 @@ class S32Stepper(MotorHAL):
     """The library's behaviour on a TMC5130 and a TLE5012B (tmc5130.TMC5130, tle5012b.TLE5012B or
     fakes), `enable` the driver's enable pin (low = on), `rate_hz` the update() rate."""
 
+    _encoder_cpr = COUNTS_PER_REV
+
     def __init__(self, driver, encoder, enable=None, rate_hz=1000):
         self._drv = driver
         self._enc = encoder
@@ -74,7 +76,7 @@ class S32Stepper(MotorHAL):
         raw = self._enc.read_angle()
         if raw < 0:
             raise OSError("TLE5012B encoder: no valid angle (safety word 0x%04x)" % self._enc.safety)
-        self._offset = raw
+        self._offset = self._corrected(raw)
         self._raw = 0
         self._count = 0
         self._vel.reset()
@@ -90,7 +92,7 @@ class S32Stepper(MotorHAL):
         drv = self._drv
         raw = self._enc.read_angle()
         if raw >= 0:
-            raw = (raw - self._offset) & 0x7FFF
+            raw = (self._corrected(raw) - self._offset) & 0x7FFF
             delta = raw - self._raw
             if delta > _HALF_REV:
                 delta -= COUNTS_PER_REV
@@ -233,7 +235,7 @@ class S32Stepper(MotorHAL):
         drv = self._drv
         raw = self._enc.read_angle()
         if raw >= 0:
-            self._offset = raw
+            self._offset = self._corrected(raw)
         self._raw = 0
         self._count = 0
         self._vel.reset()
@@ -250,6 +252,9 @@ class S32Stepper(MotorHAL):
         """Encoder angle since home, degrees Q12: 45 Q12 units a count (360 * 4096 / 32768)."""
         count = self._count
         return count * 45 if -23860929 < count < 23860929 else (_LIMIT if count > 0 else -_LIMIT)
+
+    def encoder_zero(self):
+        return (self._offset & 0x7FFF) * 45
 
     def encoder_rpm(self):
         """rpm Q16 from the estimator's counts/s (Q8): x 60 / 32768 x 65536 / 256 = x 15 / 32."""

@@ -141,7 +141,9 @@ class SimStepper(MotorHAL):
     corner_speed     rad/s, torque roll-off T_max / (1 + |w| / corner_speed)
     wall_stiffness   N*m/rad, wall_damping N*m*s/rad: the end stops as seen from the motor shaft
     enc_sigma        encoder white noise, counts (1 count = 360/counts_per_rev deg)
-    enc_harmonics    amplitudes (deg) of the 1x and 2x per revolution encoder error, random phases
+    enc_harmonics    the datasheet's bound (deg) on the 1x and 2x per revolution encoder error; this
+                     board's amplitudes are drawn within it (30..100 %) and its phases at random,
+                     per seed, from a stream of their own (the other draws stay as they were)
     counts_per_rev   encoder resolution: 32768 (TLE5012B, 15 bit) or 4096 (AS5600, 12 bit)
     wiring_sign      +1/-1: field direction per driver ustep with the shaft bit clear
     isr_skip_prob    probability that an ISR tick is skipped (SPI semaphore held by the main thread)
@@ -202,12 +204,14 @@ class SimStepper(MotorHAL):
         self._walls()
         # Encoder: magnet offset and harmonic error phases are properties of this board.
         self._counts_per_rev = float(counts_per_rev)
+        self._encoder_cpr = int(counts_per_rev)
         self._counts_per_ustep = self._counts_per_rev / _USTEPS_PER_REV
         self._usteps_per_count = _USTEPS_PER_REV / self._counts_per_rev  # the closed loop's conversion
         self._magnet_offset = rng.uniform() * self._counts_per_rev
         cpd = self._counts_per_rev / 360.0
-        self._harmonic1_counts = enc_harmonics[0] * cpd
-        self._harmonic2_counts = enc_harmonics[1] * cpd
+        board = _Rng(seed ^ 0x5EED0E5C)
+        self._harmonic1_counts = enc_harmonics[0] * cpd * (0.3 + 0.7 * board.uniform())
+        self._harmonic2_counts = enc_harmonics[1] * cpd * (0.3 + 0.7 * board.uniform())
         self._harmonic1_phase = 2.0 * math.pi * rng.uniform()
         self._harmonic2_phase = 2.0 * math.pi * rng.uniform()
         self._noise_counts = enc_sigma
@@ -262,14 +266,15 @@ class SimStepper(MotorHAL):
 
     # ---- driver/encoder internals ------------------------------------------------------------
     def _raw(self):
-        """One encoder reading: unwrapped raw counts (angle + systematic error + noise)."""
+        """One encoder reading as the firmware takes it: unwrapped raw counts (angle + systematic
+        error + noise), less its calibrated error (set_encoder_correction)."""
         r = self._rotor * _RAD_PER_USTEP
         c = (self._rotor * self._counts_per_ustep + self._magnet_offset
              + self._harmonic1_counts * math.sin(r + self._harmonic1_phase)
              + self._harmonic2_counts * math.sin(2.0 * r + self._harmonic2_phase))
         if self._noise_counts:
             c += self._noise_counts * self._rng.gauss()
-        return math.floor(c)
+        return self._corrected(math.floor(c))
 
     def _currents(self):
         if not self._powered:
@@ -353,6 +358,7 @@ class SimStepper(MotorHAL):
         mag, h1, h2 = self._magnet_offset, self._harmonic1_counts, self._harmonic2_counts
         p1, p2 = self._harmonic1_phase, self._harmonic2_phase
         cpu, upc = self._counts_per_ustep, self._usteps_per_count
+        calibrated = self._encoder_table is not None
         r_enc = None  # rotor position of the cached noise-free encoder reading c_enc
         c_enc = 0.0
         while t_next <= now:
@@ -480,7 +486,7 @@ class SimStepper(MotorHAL):
                 c = c_enc
                 if sigma:
                     c += sigma * rng.gauss()
-                counts = floor(c) - home
+                counts = (self._corrected(floor(c)) if calibrated else floor(c)) - home
                 est.update(counts)
             if cl_on:
                 meas = int(upc * counts)
@@ -600,6 +606,9 @@ class SimStepper(MotorHAL):
 
     def angle_moved(self):
         return self._counts * (360.0 / self._counts_per_rev)
+
+    def encoder_zero(self):
+        return (self._home_raw % self._encoder_cpr) * (360.0 / self._counts_per_rev)
 
     def encoder_rpm(self):
         return self._est.value * (60.0 / self._counts_per_rev)

@@ -356,6 +356,7 @@ PROTOCOL = const(0x32)
 HOMINGTRAVEL = const(0x33)
 WATCHDOG = const(0x34)
 HOMINGRESULT = const(0x35)
+ENCODERZERO = const(0x36)
 WATCHDOG_MAX_MS = const(5000)
 
 BRAKE_FREEWHEEL = const(0)
@@ -441,6 +442,9 @@ REGISTERS = (
              doc="extension: encoder travel of the last successful homing, start to end stop"),
     Register(HOMINGRESULT, "HOMINGRESULT", read=(Field("outcome", U8),),
              doc="extension: how the last HOME ended, an index of HOMING_OUTCOMES"),
+    Register(ENCODERZERO, "ENCODERZERO", read=_f32("angle", _DEG),
+             doc="extension: the encoder's own angle in its turn (0..360, calibration applied) where "
+                 "ANGLEMOVED reads 0: the frame of the encoder calibration table"),
 )
 
 # How a HOME ends (HOMINGRESULT; the joint logs the number, `bioscara console` these words).
