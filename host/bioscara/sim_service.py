@@ -24,6 +24,9 @@ op code and its payload; a reply body is a status and its payload.
     SCAN                              -> OK addresses
     STATUS                            -> OK JSON status
     STOP                              -> OK; the service ends
+    CONFIG_READ   addr                -> OK the joint's configuration file | FAIL why
+    CONFIG_WRITE  addr, file bytes    -> OK (read at the joint's next boot) | FAIL why (nothing changed)
+    REBOOT        addr                -> OK (the joint's firmware restarts) | FAIL why
 """
 
 from __future__ import annotations
@@ -53,7 +56,7 @@ from .paths import private_dir
 log = logging.getLogger("bioscara.sim_service")
 
 SOCKET_NAME, LOCK_NAME, LOG_NAME = "sim.sock", "sim.lock", "sim.log"
-HELLO, XFER, SCAN, STATUS, STOP = 1, 2, 3, 4, 5
+HELLO, XFER, SCAN, STATUS, STOP, CONFIG_READ, CONFIG_WRITE, REBOOT = 1, 2, 3, 4, 5, 6, 7, 8
 OK, NACK, FAIL = 0, 1, 2
 MAX_MESSAGE = 64 * 1024  # a longer length prefix is a client that does not speak this protocol
 START_TIMEOUT_S = 10.0  # for a new service to listen
@@ -190,7 +193,23 @@ class SocketFrontend:
         if op == STOP:
             self.server.request_stop()
             return OK, b""
+        if op in (CONFIG_READ, CONFIG_WRITE, REBOOT) and payload:
+            return self._joint_file(op, bus.joint_at(payload[0]), payload[1:])
         return FAIL, f"unknown request {op}".encode()
+
+    def _joint_file(self, op: int, joint: Any, data: bytes) -> tuple[int, bytes]:
+        if joint is None:
+            return FAIL, b"no simulated joint at that address"
+        try:
+            if op == CONFIG_READ:
+                return OK, joint.config_file()
+            if op == CONFIG_WRITE:
+                joint.write_config_file(data)
+            else:
+                joint.power_cycle()
+        except (OSError, ValueError) as exc:
+            return FAIL, str(exc).encode()
+        return OK, b""
 
     def close(self) -> None:
         for fd in list(self.clients):
@@ -534,6 +553,25 @@ class ServiceBus(Bus):
                 return False
             raise CommError(f"{self.describe()} {exc.strerror or exc}") from None
         return True
+
+    def _joint_request(self, op: int, addr: int, data: bytes = b"") -> bytes:
+        try:
+            code, reply = self._ask(op, bytes((addr,)) + data)
+        except OSError as exc:
+            raise CommError(f"{self.describe()} {exc.strerror or exc}") from None
+        if code != OK:
+            raise ConfigError(f"the simulated joint at 0x{addr:02x}: {reply.decode(errors='replace')}")
+        return reply
+
+    def joint_config_file(self, addr: int) -> bytes:
+        return self._joint_request(CONFIG_READ, addr)
+
+    def write_joint_config_file(self, addr: int, data: bytes) -> None:
+        self._joint_request(CONFIG_WRITE, addr, data)
+
+    def reboot_joint(self, addr: int, timeout: float = 10.0) -> None:
+        self._joint_request(REBOOT, addr)
+        self._await_joint(addr, timeout)
 
     def scan(self, first: int = 0x08, last: int = 0x77) -> list[int]:
         try:

@@ -22,10 +22,11 @@ class SimJoint:
     brown-out.
     """
 
-    def __init__(self, cfg, clock, stepper, port="rp2", write=None, level=INFO):
+    def __init__(self, cfg, clock, stepper, port="rp2", write=None, level=INFO, config_data=None):
         if not cfg.valid:
             raise ValueError("; ".join(cfg.errors))
         self.cfg = cfg
+        self.config_data = config_data  # the decoded config file the joint holds (None: built in code)
         self.clock = clock
         self.stepper = stepper
         self.port = port
@@ -42,6 +43,22 @@ class SimJoint:
         self.switch = None
         self.core = JointController(FixedPointHAL(self.stepper), self.clock, self.cfg, self.log)
         self.boots += 1
+
+    def config_file(self):
+        """The joint's configuration file, as a host reads it over the board's USB (JSON bytes)."""
+        if self.config_data is None:
+            raise OSError("this simulated joint was built without a configuration file")
+        return json.dumps(self.config_data).encode()
+
+    def write_config_file(self, raw):
+        """Replace the configuration file (as the board's file system does, whole); the firmware reads
+        it at its next boot (power_cycle). ValueError, and nothing changes, when the firmware would
+        refuse it."""
+        cfg = joint_config.parse_bytes(raw, self.cfg.source)
+        if not cfg.valid:
+            raise ValueError("; ".join(cfg.errors))
+        self.config_data = json.loads(raw)
+        self.cfg = cfg
 
     @property
     def target(self):
@@ -88,6 +105,11 @@ def shipped_config(joint, address=None, deadman_ms=None):
     I2C pins are the board's (a Pico's backend and wiring), so the motor becomes the simulator's
     and the pins go unused; `address` and `deadman_ms`, when given, replace the file's (the host
     places the joint) and are checked like the file's own values."""
+    return joint_config.parse(*shipped_data(joint, address, deadman_ms))
+
+
+def shipped_data(joint, address=None, deadman_ms=None):
+    """(decoded file, its path) of shipped_config."""
     path = __file__.rsplit("/", 2)[0] + "/config/" + joint + ".json"  # beside sim/, in the package
     with open(path) as f:
         data = json.load(f)
@@ -96,7 +118,7 @@ def shipped_config(joint, address=None, deadman_ms=None):
         data["address"] = address
     if deadman_ms is not None:
         data["deadman_ms"] = deadman_ms
-    return joint_config.parse(data, path)
+    return data, path
 
 
 def make_joint(joint, clock, stepper, **kwargs):

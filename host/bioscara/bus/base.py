@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from ..errors import CommError
+from ..errors import CommError, ConfigError
 
 if TYPE_CHECKING:
     from ..commander import Commander
@@ -110,6 +110,30 @@ class Bus(ABC):
 
     def describe(self) -> str:
         return self.scheme + ":"
+
+    def joint_config_file(self, addr: int) -> bytes:
+        """The configuration file (JSON bytes) of the joint at `addr`, where the bus reaches it."""
+        raise ConfigError(self._no_config_file())
+
+    def write_joint_config_file(self, addr: int, data: bytes) -> None:
+        """Replace the joint's configuration file whole (ConfigError, and nothing changes, when its
+        firmware would refuse it); the firmware reads it at its next boot (`reboot_joint`)."""
+        raise ConfigError(self._no_config_file())
+
+    def reboot_joint(self, addr: int, timeout: float = 10.0) -> None:
+        """Restart the joint's firmware and wait (bus clock, at most `timeout` s) until it answers."""
+        raise ConfigError(self._no_config_file())
+
+    def _no_config_file(self) -> str:
+        return (f"{self.describe()} reaches the joints' I2C only; a joint's configuration file is on its "
+                f"board (`bioscara flash JOINT --config FILE` writes it over the board's USB)")
+
+    def _await_joint(self, addr: int, timeout: float) -> None:
+        deadline = self.monotonic() + timeout
+        while not self._probe(addr):
+            if self.monotonic() >= deadline:
+                raise CommError(f"the joint at 0x{addr:02x} did not come back within {timeout:g} s of its reboot")
+            self.sleep(0.05)
 
     def arm_lock_path(self) -> Path | None:
         """The commander lock every process opening this bus shares (see commander.py); None

@@ -15,9 +15,11 @@ from typing import Any, Callable, Sequence
 from ..firmware.sim.bus import SimJointBus
 from ..firmware.sim.clock import VirtualClock
 from ..firmware.sim import mechanics
-from ..firmware.sim.joint import SimJoint, shipped_config
+from ..firmware.config import schema as firmware_config
+from ..firmware.sim.joint import SimJoint, shipped_data
 from ..firmware.sim.stepper import SimStepper
 from ..transmission import Transmission
+from ..errors import ConfigError
 from .base import Bus
 
 log = logging.getLogger("bioscara.sim")
@@ -61,8 +63,8 @@ def build_joint(spec: SimJointSpec, clock: VirtualClock, seed: int, port: str,
                                                                        spec.noise))
     low, high = sorted((spec.motor_degrees(spec.min), spec.motor_degrees(spec.max)))
     stepper.set_end_stops(low, high)
-    cfg = shipped_config(spec.firmware_joint, spec.address, spec.deadman_ms)
-    return SimJoint(cfg, clock, stepper, port=port, write=write)
+    data, path = shipped_data(spec.firmware_joint, spec.address, spec.deadman_ms)
+    return SimJoint(firmware_config.parse(data, path), clock, stepper, port=port, write=write, config_data=data)
 
 
 class SimBus(Bus):
@@ -93,6 +95,22 @@ class SimBus(Bus):
         if joint is None:
             raise KeyError(f"no simulated joint at 0x{address:02x}")
         return joint
+
+    def joint_config_file(self, addr: int) -> bytes:
+        with self._lock:
+            return bytes(self.joint(addr).config_file())
+
+    def write_joint_config_file(self, addr: int, data: bytes) -> None:
+        with self._lock:
+            try:
+                self.joint(addr).write_config_file(data)
+            except ValueError as exc:
+                raise ConfigError(f"the joint refuses the configuration: {exc}") from None
+
+    def reboot_joint(self, addr: int, timeout: float = 10.0) -> None:
+        with self._lock:
+            self.joint(addr).power_cycle()
+        self._await_joint(addr, timeout)
 
     def joint_position(self, address: int) -> float:
         """True joint position (joint units) from the simulated link (not the rotor: the

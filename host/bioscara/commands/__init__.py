@@ -6,4 +6,4 @@ fails the docs build. The modules may import the rest of `bioscara`, never each 
 `options` (argument types) and `power` (enable and disable share it).
 """
 
-COMMANDS = ["demo", "panel", "scan", "info", "enable", "disable", "home", "move", "stop", "monitor", "plot", "shell", "flash", "sim", "console", "ports", "pins"]
+COMMANDS = ["demo", "panel", "scan", "info", "enable", "disable", "home", "move", "calibrate", "stop", "monitor", "plot", "shell", "flash", "sim", "console", "ports", "pins"]
