@@ -303,11 +303,11 @@ def test_the_configuration_is_read_from_flash_up_to_erased_bytes():
 class S32Joint:
     """JointController + I2CTargetAdapter + S32Stepper on the fakes, booted."""
 
-    def __init__(self, joint="J1"):
+    def __init__(self, joint="J1", cfg=None):
         self.clock = VirtualClock()
         self.board = Board()
         self.motor = motor_on(self.board)
-        self.cfg = config.default(joint)
+        self.cfg = cfg or config.default(joint)
         self.lines = []
         self.core = JointController(self.motor, self.clock, self.cfg, Logger(joint, write=self.lines.append))
         self.target = FakeI2CTarget(self.cfg.address)

@@ -273,17 +273,41 @@ def plan(board: Board, joint: str, config: tuple[bytes, firmware_config.JointCon
     """Probe the board, refuse it if unfit, build the image and diff it against the board's files."""
     info = board.info()
     check_board(info, board.port)
-    image = build_image(joint, info, config, line_numbers=line_numbers, manifest=manifest)
+    config_text, cfg = config if config is not None else joint_config(joint)
+    warnings = []
+    if info.installed_joint == joint:
+        config_text, kept = keep_calibration(config_text, board.read(CONFIG_PATH))
+        if kept:
+            warnings.append(kept)
+    image = build_image(joint, info, (config_text, cfg), line_numbers=line_numbers, manifest=manifest)
     on_board = board.hashes(MANAGED)
     added = tuple(p for p in image.files if p not in on_board)
     updated = tuple(p for p in image.files if p in on_board and on_board[p] != image.sha256(p))
     unchanged = tuple(p for p in image.files if on_board.get(p) == image.sha256(p))
     stale = tuple(sorted(p for p in on_board if p.startswith(PACKAGE_DIR + "/") and p not in image.files))
-    warnings = []
     if info.installed_joint and info.installed_joint != joint:
         warnings.append(f"the board was configured as {info.installed_joint.lower()}; it becomes {joint.lower()} "
                         f"(I2C address 0x{image.address:02x})")
     return Plan(board.port, info, image, added, updated, unchanged, stale, tuple(warnings))
+
+
+def keep_calibration(config_text: bytes, on_board: bytes | None) -> tuple[bytes, str]:
+    """The configuration to flash, with the encoder calibration the board's own configuration holds
+    (`bioscara calibrate` measured that board's sensor and magnet, which a new firmware does not
+    change), and a line saying what was kept or why not ("" when there was nothing to keep). A
+    configuration that brings its own `encoder` section keeps it."""
+    if on_board is None:
+        return config_text, ""
+    board_cfg = firmware_config.parse_bytes(on_board, CONFIG_PATH)
+    table = list(board_cfg.encoder.correction)
+    if not table:
+        return config_text, ""
+    data = json.loads(config_text)
+    if "encoder" in data:
+        return config_text, "the board's encoder calibration is replaced by the configuration's encoder section"
+    data["encoder"] = {"correction": table}
+    return (json.dumps(data, indent=2).encode() + b"\n",
+            f"kept the board's encoder calibration ({len(table)} points, `bioscara calibrate`)")
 
 
 def plan_without_board(joint: str, config: tuple[bytes, firmware_config.JointConfig] | None = None,

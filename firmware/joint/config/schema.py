@@ -178,6 +178,7 @@ def parse(data, source=CONFIG_FILE):
 def _parse_encoder(cfg, encoder):
     """encoder.correction, the calibration table; a bad one is an error and the table is not used."""
     table = ()
+    known = len(cfg.errors)
     if type(encoder) is not dict:
         cfg.errors.append("%s: encoder must be an object" % cfg.source)
         encoder = {}
@@ -195,7 +196,7 @@ def _parse_encoder(cfg, encoder):
     elif raw and type(cfg.motor) is dict and cfg.motor.get("backend") == "pico":
         cfg.errors.append("%s: encoder.correction: the pico backend does not apply an encoder correction yet"
                           % cfg.source)
-    else:
+    elif len(cfg.errors) == known:
         table = tuple(raw)
     cfg.encoder = Section({"correction": table})
 

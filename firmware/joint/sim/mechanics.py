@@ -128,6 +128,7 @@ def stepper_kwargs(joint, payload_kg=0.0, noise="nominal", encoder="tle5012b"):
         "enc_sigma": enc["sigma_deg"][noise] * cpr / 360.0,
         "enc_harmonics": enc["harmonics"][noise],
         "isr_skip_prob": ISR_SKIP[noise],
+        "encoder_board": int(joint[1]),
     }
 
 

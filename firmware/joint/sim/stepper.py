@@ -28,6 +28,8 @@ on the rotor; its counts grow with R (the connector/magnet orientation is folded
 Simulator hooks (not part of MotorHAL):
     rotor_angle()                  true rotor angle, motor degrees (0 = at construction)
     slipped_periods()              electrical periods lost (pole slips) since construction
+    encoder_error(rotor_deg)       what the firmware's encoder reading (noise-free, calibrated as set) is
+                                   off by at that true rotor angle, degrees, up to a constant
     load_angle()                   true position of the driven link in motor degrees (the rotor
                                    when there is no load model)
     set_end_stops(low_deg=None, high_deg=None)   one-sided walls on the load (None: no wall)
@@ -143,7 +145,10 @@ class SimStepper(MotorHAL):
     enc_sigma        encoder white noise, counts (1 count = 360/counts_per_rev deg)
     enc_harmonics    the datasheet's bound (deg) on the 1x and 2x per revolution encoder error; this
                      board's amplitudes are drawn within it (30..100 %) and its phases at random,
-                     per seed, from a stream of their own (the other draws stay as they were)
+                     per seed and `encoder_board`, from a stream of their own (the seed's other
+                     draws stay as they were)
+    encoder_board    which sensor of the arm this is (mechanics.py: 1..4 for J1..J4): joints built
+                     on one seed still get errors of their own
     counts_per_rev   encoder resolution: 32768 (TLE5012B, 15 bit) or 4096 (AS5600, 12 bit)
     wiring_sign      +1/-1: field direction per driver ustep with the shaft bit clear
     isr_skip_prob    probability that an ISR tick is skipped (SPI semaphore held by the main thread)
@@ -159,7 +164,7 @@ class SimStepper(MotorHAL):
                  corner_speed=60.0, brake_damping=0.01, wall_stiffness=200.0, wall_damping=0.02, enc_sigma=0.7,
                  enc_harmonics=(0.15, 0.10), wiring_sign=1, isr_skip_prob=0.0, enc_fail_prob=0.0,
                  counts_per_rev=32768, load_inertia=0.0, coupling_stiffness=1.0, coupling_damping=0.0,
-                 backlash=0.0, load_damping=0.0, load_friction=0.0, load_torque=0.0):
+                 backlash=0.0, load_damping=0.0, load_friction=0.0, load_torque=0.0, encoder_board=0):
         self._clock = clock
         self._rng = rng = _Rng(seed)
         # Physics in usteps (ustepper-model.md 8.4 Level 2, divided by the inertia): a torque (N*m)
@@ -209,11 +214,11 @@ class SimStepper(MotorHAL):
         self._usteps_per_count = _USTEPS_PER_REV / self._counts_per_rev  # the closed loop's conversion
         self._magnet_offset = rng.uniform() * self._counts_per_rev
         cpd = self._counts_per_rev / 360.0
-        board = _Rng(seed ^ 0x5EED0E5C)
+        board = _Rng((seed * 31 + encoder_board) ^ 0x5EED0E5C)
         self._harmonic1_counts = enc_harmonics[0] * cpd * (0.3 + 0.7 * board.uniform())
         self._harmonic2_counts = enc_harmonics[1] * cpd * (0.3 + 0.7 * board.uniform())
-        self._harmonic1_phase = 2.0 * math.pi * rng.uniform()
-        self._harmonic2_phase = 2.0 * math.pi * rng.uniform()
+        self._harmonic1_phase = 2.0 * math.pi * (rng.uniform() + board.uniform())
+        self._harmonic2_phase = 2.0 * math.pi * (rng.uniform() + board.uniform())
         self._noise_counts = enc_sigma
         self._magnet = MAGNET_OK  # what the sensor's status says (weaken_magnet)
         self._isr_skip_prob = isr_skip_prob
@@ -268,13 +273,18 @@ class SimStepper(MotorHAL):
     def _raw(self):
         """One encoder reading as the firmware takes it: unwrapped raw counts (angle + systematic
         error + noise), less its calibrated error (set_encoder_correction)."""
-        r = self._rotor * _RAD_PER_USTEP
-        c = (self._rotor * self._counts_per_ustep + self._magnet_offset
-             + self._harmonic1_counts * math.sin(r + self._harmonic1_phase)
-             + self._harmonic2_counts * math.sin(2.0 * r + self._harmonic2_phase))
+        c = self._noise_free(self._rotor)
         if self._noise_counts:
             c += self._noise_counts * self._rng.gauss()
         return self._corrected(math.floor(c))
+
+    def _noise_free(self, rotor):
+        """The sensor's counts (unwrapped, not floored) at `rotor` usteps: angle + systematic error.
+        update() inlines the same sum on its hot path."""
+        r = rotor * _RAD_PER_USTEP
+        return (rotor * self._counts_per_ustep + self._magnet_offset
+                + self._harmonic1_counts * math.sin(r + self._harmonic1_phase)
+                + self._harmonic2_counts * math.sin(2.0 * r + self._harmonic2_phase))
 
     def _currents(self):
         if not self._powered:
@@ -634,6 +644,14 @@ class SimStepper(MotorHAL):
 
     def rotor_angle(self):
         return self._rotor / _ANGLE_TO_STEP
+
+    def encoder_error(self, rotor_deg):
+        """Degrees by which the firmware's encoder reading (noise left out, its calibration
+        applied) differs from the rotor's true angle `rotor_deg`, up to a constant: the error a
+        calibration is to remove."""
+        r = rotor_deg * _ANGLE_TO_STEP
+        true = r * self._counts_per_ustep + self._magnet_offset
+        return (self._corrected(math.floor(self._noise_free(r))) - true) * (360.0 / self._counts_per_rev)
 
     def slipped_periods(self):
         """Whole electrical periods (4 full steps) the rotor has fallen behind or run ahead of the
