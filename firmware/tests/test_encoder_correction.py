@@ -11,6 +11,7 @@ from joint.sim.clock import VirtualClock
 from joint.sim.stepper import SimStepper
 from test_s32_backend import S32Joint, begun, motor_on
 from s32_fakes import Board
+from pico_fakes import Bench
 
 
 def _with_encoder(encoder, backend="sim"):
@@ -43,9 +44,6 @@ def test_a_malformed_or_hostile_table_is_an_error_and_is_not_used():
         cfg = _with_encoder(encoder)
         assert not cfg.valid and cfg.encoder.correction == (), encoder
         assert any(message in e for e in cfg.errors), (message, cfg.errors)
-    cfg = _with_encoder({"correction": [1] * 32}, backend="pico")
-    assert not cfg.valid and cfg.encoder.correction == ()
-    assert any("the pico backend does not apply an encoder correction" in e for e in cfg.errors), cfg.errors
 
 
 def _stepper(joint, seed):
@@ -151,3 +149,48 @@ def test_a_calibrated_s32_joint_reports_its_encoder_zero_and_its_main_loop_alloc
         j.tick(5)
         got = j.bytes_per_service(300)
         assert got is None or got == 0, "%s: %s bytes per service()" % (name, got)
+
+
+def _misreading_bench(amplitude):
+    """A PicoStepper bench whose AS5600 reads off by a triangle wave of `amplitude` counts a turn."""
+    bench = Bench()
+
+    def error(angle):
+        return abs((angle * 4 * amplitude) // 4096 - 2 * amplitude) - amplitude
+
+    def encode():
+        true = (int(bench.rotor // 12.5) + bench.offset) % 4096
+        bench.i2c.raw = (true + error(true)) % 4096
+    bench._encode = encode
+    encode()
+    return bench, error
+
+
+def _pico_worst_misreading(bench):
+    worst = 0
+    start = bench.rotor
+    bench.tick(2)
+    begin = bench.motor.angle_moved()
+    for step in range(1, 65):
+        bench.rotor = start + step * 800
+        bench.tick(2)
+        moved = int((bench.rotor - start) // 12.5)  # counts
+        worst = max(worst, abs((bench.motor.angle_moved() - begin) // 360 - moved))
+    return worst
+
+
+def test_the_pico_backend_subtracts_the_table_from_every_reading():
+    amplitude = 12  # counts of the AS5600's 4096: about 1 degree
+    raw_bench, _ = _misreading_bench(amplitude)
+    bench, error = _misreading_bench(amplitude)
+    table = [int(round(error(i * 128) * 360000 / 4096)) for i in range(32)]
+    bench.motor.set_encoder_correction(table)
+    raw_bench.begin()
+    bench.begin()
+    assert _pico_worst_misreading(raw_bench) > amplitude
+    assert _pico_worst_misreading(bench) <= 2
+    # Where ANGLEMOVED is 0, in the sensor's own (corrected) angle: the magnet's 1000 counts at rotor 0.
+    bench.motor.set_home()
+    bench.tick(2)
+    expected = (int(bench.rotor // 12.5) + bench.offset) % 4096
+    assert abs(bench.motor.encoder_zero() // 360 - expected) <= 2, (bench.motor.encoder_zero() // 360, expected)

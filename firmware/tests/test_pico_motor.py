@@ -146,8 +146,8 @@ def test_the_closed_loop_reads_the_state_words_where_encoder_and_ramp_keep_them(
         return  # const() names with a leading underscore are no module attributes there
     from joint.pico import motor
     from joint.motion import fixed, tickramp
-    assert (motor._ES_COUNT, motor._ES_AT, motor._ES_NEXT, motor._RS_X, motor._RS_V, motor._LIMIT) == (
-        enc.S_COUNT, enc.S_AT, enc.S_NEXT, tickramp.S_X, tickramp.S_V, fixed.LIMIT)
+    assert (motor._ES_RAW, motor._ES_COUNT, motor._ES_AT, motor._ES_NEXT, motor._RS_X, motor._RS_V, motor._LIMIT) == (
+        enc.S_RAW, enc.S_COUNT, enc.S_AT, enc.S_NEXT, tickramp.S_X, tickramp.S_V, fixed.LIMIT)
     assert (motor._RS_MODE, motor._RS_VMAX, motor._VELOCITY_POS, motor._VELOCITY_NEG) == (
         tickramp.S_MODE, tickramp.S_VMAX, tickramp.VELOCITY_POS, tickramp.VELOCITY_NEG)
 

@@ -193,9 +193,6 @@ def _parse_encoder(cfg, encoder):
         bad = [v for v in raw if not (type(v) is int and -CORRECTION_LIMIT_MDEG <= v <= CORRECTION_LIMIT_MDEG)][0]
         cfg.errors.append("%s: encoder.correction holds %r: each entry must be an integer within +-%d (motor "
                           "millidegrees)" % (cfg.source, bad, CORRECTION_LIMIT_MDEG))
-    elif raw and type(cfg.motor) is dict and cfg.motor.get("backend") == "pico":
-        cfg.errors.append("%s: encoder.correction: the pico backend does not apply an encoder correction yet"
-                          % cfg.source)
     elif len(cfg.errors) == known:
         table = tuple(raw)
     cfg.encoder = Section({"correction": table})

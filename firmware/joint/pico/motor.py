@@ -41,8 +41,9 @@ _MAX_DT_TICKS = const(4)  # a late update advances the ramp by at most this many
 
 
 # Words of the state arrays _resync and the 1 kHz methods work on, as constants here (viper
-# needs them; elsewhere each saves a global lookup): the encoder's (as5600.S_COUNT, S_AT, S_NEXT)
-# and the ramp's position and speed (tickramp.S_X, S_V); test_pico_motor checks.
+# needs them; elsewhere each saves a global lookup): the encoder's (as5600.S_RAW, S_COUNT, S_AT,
+# S_NEXT) and the ramp's position and speed (tickramp.S_X, S_V); test_pico_motor checks.
+_ES_RAW = const(0)
 _ES_COUNT = const(1)
 _ES_AT = const(4)
 _ES_NEXT = const(6)
@@ -96,6 +97,9 @@ def _velocity_mode(rs: ptr32, rpm: int, den: int, limit: int):
 
 class PicoStepper(MotorHAL):
     """The uStepper library's behaviour on Pico hardware objects passed in (fakes in tests)."""
+
+    _encoder_cpr = 4096
+    _encoder_error = 0  # counts: the calibrated error at the last reading, already taken off the count
 
     def __init__(self, driver, encoder, steps, enable=None, clock=None, update_hz=1000,
                  rsense_ohm=0.11, full_scale_ma=1500, encoder_slow_filter=3, encoder_fast_threshold=0):
@@ -153,6 +157,12 @@ class PicoStepper(MotorHAL):
         if got < 0:
             got = self._enc.sample(ss[0], ss[3])
         if got:
+            if self._encoder_table is not None:
+                # The count unwraps raw readings (as5600.next_sample): it moves by the change of the error.
+                raw = es[_ES_RAW]
+                error = raw - self._corrected(raw)
+                es[_ES_COUNT] += self._encoder_error - error
+                self._encoder_error = error
             update_velocity(vs, es[_ES_COUNT])
             if self._closed_loop:
                 self._error = _resync(es, ss, rs, self._threshold)
@@ -303,7 +313,7 @@ class PicoStepper(MotorHAL):
     def encoder_zero(self):
         """The sensor's angle at home, Q12 degrees (360 a count): the last reading less the count."""
         enc = self._enc
-        return ((enc.raw - enc.count) & 0xFFF) * 360
+        return ((enc.raw - self._encoder_error - enc.count) & 0xFFF) * 360
 
     def encoder_rpm(self):
         """rpm in Q16: counts/s (Q8) * 60 / 4096 * 256 (|counts/s| < 280 000 keeps it small)."""

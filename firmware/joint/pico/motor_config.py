@@ -266,6 +266,7 @@ def begin_stepper(m):
         raise OSError("AS5600: magnet %s (check the magnet and its distance)" % problem)
     enc.configure(m._enc_conf[0], m._enc_conf[1])
     enc.start()
+    m._encoder_error = enc.raw - m._corrected(enc.raw)
     m._vel.reset()
     m._steps.shift(-m._steps.position)
     ramp = m._ramp
