@@ -594,3 +594,25 @@ def test_a_missing_port_is_explained_like_the_bus_explains_it(capsys, tmp_path):
     err = capsys.readouterr().err
     assert code == 1 and "does not exist (is the board plugged in?" in err
 
+
+
+def test_reflashing_keeps_the_encoder_calibration_the_board_holds():
+    board = FakeBoard()
+    flashed(board, "J1")
+    board._info = replace(RP2, installed_firmware=firmware_flash.FIRMWARE_VERSION, installed_joint="J1")
+    calibrated = json.loads(board.files["/joint_config.json"])
+    table = [(i * 37) % 101 - 50 for i in range(32)]
+    calibrated["encoder"] = {"correction": table}
+    board.files["/joint_config.json"] = json.dumps(calibrated).encode()
+    plan = flashed(board, "J1")
+    assert json.loads(board.files["/joint_config.json"])["encoder"] == {"correction": table}
+    assert any("kept the board's encoder calibration (32 points" in w for w in plan.warnings)
+    # A table the firmware would refuse is not carried over; a board that becomes another joint starts afresh.
+    calibrated["encoder"] = {"correction": [9000] * 32}
+    board.files["/joint_config.json"] = json.dumps(calibrated).encode()
+    flashed(board, "J1")
+    assert "encoder" not in json.loads(board.files["/joint_config.json"])
+    calibrated["encoder"] = {"correction": table}
+    board.files["/joint_config.json"] = json.dumps(calibrated).encode()
+    flashed(board, "J3")
+    assert "encoder" not in json.loads(board.files["/joint_config.json"])

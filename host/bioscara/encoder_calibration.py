@@ -134,7 +134,7 @@ def with_correction(config_file: bytes, table_millideg: list[int], source: str) 
     """The joint's configuration file with `encoder.correction` set to the table, checked as its
     firmware will check it (ConfigError, naming the problem, when it would refuse it)."""
     data = decode(config_file, source)
-    data["encoder"] = {"correction": list(table_millideg)}
+    data["encoder"] = {"correction": table_millideg}
     cfg = firmware_config.parse(data, source)
     if not cfg.valid:
         raise ConfigError("; ".join(cfg.errors))
