@@ -61,6 +61,7 @@ from joint.sim.joint import SimJoint, shipped_config  # noqa: E402
 from joint.sim.stepper import SimStepper  # noqa: E402
 
 import contact_bounds  # noqa: E402 -- bench/, beside this file
+import encoder_errors  # noqa: E402
 import sim_reference  # noqa: E402
 
 JOINTS = ("J1", "J2", "J3", "J4")
@@ -855,6 +856,9 @@ def main(argv: list[str]) -> int:
         print(name, _fmt(value), flush=True)
     # The simulator these figures rest on, against an independent solution of its equations.
     print("safety.sim_reference_error_pct", _fmt(sim_reference.error_pct()), flush=True)
+    # Each joint's encoder error over a motor turn, before and after `bioscara calibrate`.
+    for name, value in encoder_errors.figures():
+        print(name, _fmt(value), flush=True)
     print(f"# {len(scenarios)} scenarios in {time.perf_counter() - t0:.0f} s; detectors: {', '.join(avail)}",
           file=sys.stderr)
     if verbose:

@@ -18,7 +18,7 @@ HELP = ("installation: turn a homed, unloaded joint's motor slowly one turn each
         "and store the correction in the joint (it reboots, homes again and is measured through it)")
 EXAMPLES = (
     ('bioscara calibrate j1', "j1's encoder: its error before and after the correction, in motor degrees"),
-    ('bioscara --json calibrate j3', 'the same as JSON, with the table written to the joint'),
+    ('bioscara calibrate j3 --json', 'the same as JSON, with the table written to the joint'),
 )
 
 
