@@ -246,3 +246,27 @@ def test_at_rest_the_joints_follow_the_wall_clock_and_input_finds_them_caught_up
     simulated = (probe.seen[0] - probe.first[0]) / 1e6
     assert probe.seen[1] == pytest.approx(0.7) and simulated == pytest.approx(0.7, abs=1e-6), \
         "served at the wall clock, not a wait behind"
+
+
+def test_a_joints_configuration_file_is_replaced_whole_and_read_at_its_reboot(state_dir: Path) -> None:
+    bus = ServiceBus(SPECS, state_dir, idle_exit_s=IDLE_EXIT_S)
+    try:
+        data = json.loads(bus.joint_config_file(0x13))
+        assert data["joint"] == "J3" and "encoder" not in data
+        with pytest.raises(ConfigError, match="encoder.correction must be a list of 16 or 32 or 64 integers"):
+            bus.write_joint_config_file(0x13, json.dumps(dict(data, encoder={"correction": [1, 2, 3]})).encode())
+        assert "encoder" not in json.loads(bus.joint_config_file(0x13)), "a refused file changes nothing"
+        table = [(i * 37) % 101 - 50 for i in range(16)]
+        bus.write_joint_config_file(0x13, json.dumps(dict(data, encoder={"correction": table})).encode())
+        assert json.loads(bus.joint_config_file(0x13))["encoder"] == {"correction": table}
+        bus.reboot_joint(0x13)
+        joint = make_joint(read_config().joints["j3"], bus, False)
+        joint.init()
+        assert not joint.is_homed(), "the joint booted again"
+        (zero,) = joint.read_register("ENCODERZERO")
+        assert 0.0 <= zero < 360.0
+        joint.close()
+        with pytest.raises(ConfigError, match="no simulated joint at that address"):
+            bus.joint_config_file(0x30)
+    finally:
+        bus.close()

@@ -9,7 +9,7 @@ from joint.config import schema as config
 from joint.sim import mechanics
 from joint.sim.clock import VirtualClock
 from joint.sim.stepper import SimStepper
-from test_s32_backend import S32Joint, begun, motor_on
+from test_s32_backend import S32Joint, begun, check_the_main_loop_allocates_nothing, motor_on
 from s32_fakes import Board
 from pico_fakes import Bench
 
@@ -143,12 +143,7 @@ def test_a_calibrated_s32_joint_reports_its_encoder_zero_and_its_main_loop_alloc
     # the boot's orientation check ends where it began), calibration applied.
     zero = j.read("ENCODERZERO")[0][0]
     assert abs(zero - j.motor._corrected(j.board.tle.raw()) * 360.0 / 32768) < 0.05, zero
-    j.command("SETUP", 40, 20, 0, 0)
-    for name, values in (("SETRPM", (60.0,)), ("MOVETOANGLE", (90.0,)), ("STOP", (0,))):
-        j.command(name, *values)
-        j.tick(5)
-        got = j.bytes_per_service(300)
-        assert got is None or got == 0, "%s: %s bytes per service()" % (name, got)
+    check_the_main_loop_allocates_nothing(j)
 
 
 def _misreading_bench(amplitude):

@@ -186,16 +186,20 @@ def _parse_encoder(cfg, encoder):
         if key != "correction":
             cfg.errors.append("%s: unknown key encoder.%s" % (cfg.source, key))
     raw = encoder.get("correction", [])
+    bad = [v for v in raw if not _correction_ok(v)] if type(raw) is list else []
     if type(raw) is not list or len(raw) not in CORRECTION_SIZES + (0,):
         cfg.errors.append("%s: encoder.correction must be a list of %s integers (motor millidegrees), got %s"
                           % (cfg.source, " or ".join(str(n) for n in CORRECTION_SIZES), _describe(raw)))
-    elif not all(type(v) is int and -CORRECTION_LIMIT_MDEG <= v <= CORRECTION_LIMIT_MDEG for v in raw):
-        bad = [v for v in raw if not (type(v) is int and -CORRECTION_LIMIT_MDEG <= v <= CORRECTION_LIMIT_MDEG)][0]
+    elif bad:
         cfg.errors.append("%s: encoder.correction holds %r: each entry must be an integer within +-%d (motor "
-                          "millidegrees)" % (cfg.source, bad, CORRECTION_LIMIT_MDEG))
+                          "millidegrees)" % (cfg.source, bad[0], CORRECTION_LIMIT_MDEG))
     elif len(cfg.errors) == known:
         table = tuple(raw)
     cfg.encoder = Section({"correction": table})
+
+
+def _correction_ok(value):
+    return type(value) is int and -CORRECTION_LIMIT_MDEG <= value <= CORRECTION_LIMIT_MDEG
 
 
 def _describe(value):
