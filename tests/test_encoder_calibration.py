@@ -74,7 +74,7 @@ def test_calibrate_refuses_a_joint_that_is_not_homed_in_one_line_and_stores_noth
 
 
 @pytest.mark.parametrize("correction, message", [
-    ([0] * 31, "encoder.correction must be a list of 16 or 32 or 64 integers"),
+    ([0] * 31, "encoder.correction must be a list of 16, 32 or 64 integers"),
     ([9000] * 32, "holds 9000: each entry must be an integer within +-5000"),
     ("[1, 2]", "got '[1, 2]'"),
 ])

@@ -253,7 +253,7 @@ def test_a_joints_configuration_file_is_replaced_whole_and_read_at_its_reboot(st
     try:
         data = json.loads(bus.joint_config_file(0x13))
         assert data["joint"] == "J3" and "encoder" not in data
-        with pytest.raises(ConfigError, match="encoder.correction must be a list of 16 or 32 or 64 integers"):
+        with pytest.raises(ConfigError, match="encoder.correction must be a list of 16, 32 or 64 integers"):
             bus.write_joint_config_file(0x13, json.dumps(dict(data, encoder={"correction": [1, 2, 3]})).encode())
         assert "encoder" not in json.loads(bus.joint_config_file(0x13)), "a refused file changes nothing"
         table = [(i * 37) % 101 - 50 for i in range(16)]

@@ -29,7 +29,7 @@ def test_a_calibration_table_is_loaded_from_the_configuration():
 
 def test_a_malformed_or_hostile_table_is_an_error_and_is_not_used():
     cases = (
-        ({"correction": [0] * 31}, "a list of 16 or 32 or 64 integers"),
+        ({"correction": [0] * 31}, "a list of 16, 32 or 64 integers"),
         ({"correction": [0] * 100000}, "100000 entries"),
         ({"correction": "0,0,0"}, "got '0,0,0'"),
         ({"correction": {"a": 1}}, "a JSON dict"),
