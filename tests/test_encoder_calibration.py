@@ -74,8 +74,8 @@ def test_calibrate_refuses_a_joint_that_is_not_homed_in_one_line_and_stores_noth
 
 
 @pytest.mark.parametrize("correction, message", [
-    ([0] * 31, "encoder.correction must be a list of 16, 32 or 64 integers"),
-    ([9000] * 32, "holds 9000: each entry must be an integer within +-5000"),
+    ([0] * 31, "encoder.correction must be a list of 16, 32 or 64 integers (motor millidegrees), got 31"),
+    ([9000] * 32, "encoder.correction = 9000 is out of range -5000..5000"),
     ("[1, 2]", "got '[1, 2]'"),
 ])
 def test_a_hostile_table_is_refused_before_it_reaches_the_joint(bus: SimBus, correction: object,

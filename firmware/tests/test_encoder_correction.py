@@ -29,14 +29,14 @@ def test_a_calibration_table_is_loaded_from_the_configuration():
 
 def test_a_malformed_or_hostile_table_is_an_error_and_is_not_used():
     cases = (
-        ({"correction": [0] * 31}, "a list of 16, 32 or 64 integers"),
-        ({"correction": [0] * 100000}, "100000 entries"),
+        ({"correction": [0] * 31}, "encoder.correction must be a list of 16, 32 or 64 integers (motor millidegrees), got 31"),
+        ({"correction": [0] * 100000}, "got 100000"),
         ({"correction": "0,0,0"}, "got '0,0,0'"),
-        ({"correction": {"a": 1}}, "a JSON dict"),
-        ({"correction": [0] * 31 + [0.5]}, "holds 0.5"),
-        ({"correction": [0] * 31 + [True]}, "holds True"),
-        ({"correction": [0] * 31 + [[1]]}, "holds [1]"),
-        ({"correction": [0] * 31 + [5001]}, "holds 5001: each entry must be an integer within +-5000"),
+        ({"correction": {"a": 1}}, "must be a list of 16, 32 or 64 integers"),
+        ({"correction": [0] * 31 + [0.5]}, "encoder.correction must be an integer, got 0.5"),
+        ({"correction": [0] * 31 + [True]}, "encoder.correction must be an integer, got True"),
+        ({"correction": [0] * 31 + [[1]]}, "encoder.correction must be an integer, got [1]"),
+        ({"correction": [0] * 31 + [5001]}, "encoder.correction = 5001 is out of range -5000..5000"),
         ({"correction": [0] * 32, "gain": 2}, "unknown key encoder.gain"),
         (7, "encoder must be an object"),
     )

@@ -16,10 +16,6 @@ ADDRESSES = {"J1": 0x11, "J2": 0x12, "J3": 0x13, "J4": 0x14}
 BACKENDS = ("pico", "s32", "sim")
 S32_JOINT_BUS = 1  # the uStepper S32's joint bus is I2C1 (PB8 SCL, PB9 SDA), pins fixed
 SAFE_ACTIONS = ("hold", "freewheel")
-# encoder.correction (`bioscara calibrate`): the encoder's error over its turn, motor millidegrees at
-# equally spaced angles from the sensor's zero; within 5 degrees, twice the TLE5012B's worst case
-# over temperature (a larger error is a misplaced magnet, which no table should hide).
-CORRECTION_LIMIT_MDEG = 5000
 
 _INT = 0
 _NUM = 1
@@ -175,36 +171,29 @@ def parse(data, source=CONFIG_FILE):
 
 
 def _parse_encoder(cfg, encoder):
-    """encoder.correction, the calibration table; a bad one is an error and the table is not used."""
-    table = ()
+    """encoder.correction (`bioscara calibrate`): the encoder's error over its turn, motor
+    millidegrees at 16, 32 or 64 equally spaced angles from the sensor's zero, each within 5
+    degrees, twice the TLE5012B's worst case over temperature (a larger error is a misplaced
+    magnet, which no table should hide). A bad table is an error and is not used. The messages
+    reuse _check's and parse's formats: every new string or name is a qstr the board keeps for
+    good (with messages of its own, this check made the board's qstr pool grow by 7.9 KB)."""
     known = len(cfg.errors)
     if type(encoder) is not dict:
-        cfg.errors.append("%s: encoder must be an object" % cfg.source)
+        cfg.errors.append("%s: %s must be an object" % (cfg.source, "encoder"))
         encoder = {}
     for key in encoder:
         if key != "correction":
-            cfg.errors.append("%s: unknown key encoder.%s" % (cfg.source, key))
+            cfg.errors.append("%s: unknown key %s.%s" % (cfg.source, "encoder", key))
     raw = encoder.get("correction", [])
-    # Plain loops, no comprehension: a function object the boot leaves behind (a comprehension is
-    # one) can keep this module's globals, 9 KB of heap, alive past startup.drop_boot_only.
     if type(raw) is not list or len(raw) not in (0, 16, 32, 64):
-        cfg.errors.append("%s: encoder.correction must be a list of 16, 32 or 64 integers (motor millidegrees), "
-                          "got %s" % (cfg.source, _describe(raw)))
+        cfg.errors.append("%s: %s must be %s, got %r" % (cfg.source, "encoder.correction", "a list of 16, 32 or 64 "
+                          "integers (motor millidegrees)", len(raw) if type(raw) is list else raw))
     else:
-        for value in raw:
-            if type(value) is not int or not -CORRECTION_LIMIT_MDEG <= value <= CORRECTION_LIMIT_MDEG:
-                cfg.errors.append("%s: encoder.correction holds %r: each entry must be an integer within +-%d "
-                                  "(motor millidegrees)" % (cfg.source, value, CORRECTION_LIMIT_MDEG))
+        for value in raw:  # a loop, not a comprehension: no function object to outlive the boot
+            _check(cfg, "encoder.correction", ("correction", _INT, 0, -5000, 5000), value)
+            if len(cfg.errors) > known:
                 break
-    if len(cfg.errors) == known:
-        table = tuple(raw)
-    cfg.encoder = Section({"correction": table})
-
-
-def _describe(value):
-    if type(value) is list:
-        return "%d entries" % len(value)
-    return "%r" % (value,) if type(value) in (int, float, bool, str) else "a JSON " + type(value).__name__
+    cfg.encoder = Section({"correction": tuple(raw) if len(cfg.errors) == known else ()})
 
 
 def _parse_motor(cfg, motor):

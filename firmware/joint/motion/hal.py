@@ -41,28 +41,28 @@ class MotorHAL:
     correction (`set_encoder_correction`, `_corrected`), which needs `_encoder_cpr`, the encoder's
     counts per turn (a power of two)."""
 
-    _encoder_table = None  # the calibrated error table in counts (None: the sensor as it reads)
-    _encoder_shift = 0
+    # The calibrated error in counts: [shift, error at angle 0, 1, ... n - 1, at 0 again], an angle
+    # being a step of 2**shift counts (None: the sensor as it reads). One attribute, one name: each
+    # name is a qstr the board keeps for good.
+    _encoder_table = None
 
-    def set_encoder_correction(self, millideg):
+    def set_encoder_correction(self, values):
         """Subtract the encoder's calibrated error from every reading from now on (call before
-        begin()): `millideg`, the error in motor millidegrees at len(millideg) equally spaced
-        angles of the sensor's own turn from its zero (a power of two, at most the counts per
-        turn; empty: no correction), linearly interpolated between them. Boot only: allocates."""
-        n = len(millideg)
+        begin()): `values`, the error in motor millidegrees at len(values) equally spaced angles
+        of the sensor's own turn from its zero (a power of two, at most the counts per turn;
+        empty: no correction), linearly interpolated between them. Boot only: allocates."""
+        n = len(values)
         if not n:
             self._encoder_table = None
             return
         cpr = self._encoder_cpr
-        table = array("h", bytes(2 * n + 2))
+        table = array("h", bytes(2 * n + 4))
+        while n << table[0] < cpr:
+            table[0] += 1
         for i in range(n):
-            table[i] = (millideg[i] * cpr + (180000 if millideg[i] >= 0 else -180000)) // 360000
-        table[n] = table[0]
-        shift = 0
-        while n << shift < cpr:
-            shift += 1
+            table[i + 1] = (values[i] * cpr + (180000 if values[i] >= 0 else -180000)) // 360000
+        table[n + 1] = table[1]
         self._encoder_table = table
-        self._encoder_shift = shift
 
     def _corrected(self, raw):
         """A reading in counts (the sensor's angle, or that angle unwrapped over turns) less the
@@ -70,9 +70,9 @@ class MotorHAL:
         table = self._encoder_table
         if table is None:
             return raw
-        shift = self._encoder_shift
+        shift = table[0]
         within = raw & (self._encoder_cpr - 1)
-        i = within >> shift
+        i = (within >> shift) + 1
         low = table[i]
         return raw - low - (((table[i + 1] - low) * (within & ((1 << shift) - 1))) >> shift)
 

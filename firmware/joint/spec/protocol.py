@@ -443,8 +443,7 @@ REGISTERS = (
     Register(HOMINGRESULT, "HOMINGRESULT", read=(Field("outcome", U8),),
              doc="extension: how the last HOME ended, an index of HOMING_OUTCOMES"),
     Register(ENCODERZERO, "ENCODERZERO", read=_f32("angle", _DEG),
-             doc="extension: the encoder's own angle in its turn (0..360, calibration applied) where "
-                 "ANGLEMOVED reads 0: the frame of the encoder calibration table"),
+             doc="extension: the encoder's own angle (0..360) where ANGLEMOVED is 0"),
 )
 
 # How a HOME ends (HOMINGRESULT; the joint logs the number, `bioscara console` these words).
