@@ -6,6 +6,7 @@ Plain functions and bare asserts: runs under CPython (pytest) and the MicroPytho
 """
 
 from joint.config import schema as config
+from joint.core.controller_init import encoder_table
 from joint.sim import mechanics
 from joint.sim.clock import VirtualClock
 from joint.sim.stepper import SimStepper
@@ -77,7 +78,7 @@ def test_the_simulated_hal_subtracts_the_table_from_what_the_firmware_reads():
         # What the encoder misreads over a turn of the sensor, found from the sensor's own angle.
         home = stepper.encoder_zero()
         table = [int(round(1000.0 * stepper.encoder_error(i * 360.0 / 32 - home))) for i in range(32)]
-        stepper.set_encoder_correction(table)
+        stepper.set_encoder_correction(encoder_table(table, stepper._encoder_cpr))
         calibrated = _peak(_profile(stepper, 720))
         assert calibrated < 0.1 * raw, (seed, raw, calibrated)
         # The readings the firmware takes (angle_moved, the closed loop) are corrected too.
@@ -127,7 +128,7 @@ def test_the_s32_backend_subtracts_the_table_from_every_reading():
     # The table in motor millidegrees at 16 angles of the sensor, as `bioscara calibrate` stores it.
     table = [int(round(error(i * 2048) * 360000 / 32768)) for i in range(16)]
     motor = motor_on(board)
-    motor.set_encoder_correction(table)
+    motor.set_encoder_correction(encoder_table(table, 32768))
     motor.begin()
     _, raw_motor = begun(raw_board)
     assert _worst_misreading(raw_board, raw_motor) > amplitude
@@ -179,7 +180,7 @@ def test_the_pico_backend_subtracts_the_table_from_every_reading():
     raw_bench, _ = _misreading_bench(amplitude)
     bench, error = _misreading_bench(amplitude)
     table = [int(round(error(i * 128) * 360000 / 4096)) for i in range(32)]
-    bench.motor.set_encoder_correction(table)
+    bench.motor.set_encoder_correction(encoder_table(table, 4096))
     raw_bench.begin()
     bench.begin()
     assert _pico_worst_misreading(raw_bench) > amplitude

@@ -20,12 +20,13 @@ table's other bytes) is written once here and only read after.
 """
 
 import struct
+from array import array
 
-from ..motion.fixed import ANGLE_Q, STEPS_Q, to_q
+from ..motion.fixed import ANGLE_Q, STEPS_Q, store_q, to_q
 from ..detect.homing import HomingMonitor
 from .irq_init import init as init_irq
 from ..spec.protocol import (
-    ACK, CHECKORIENTATION, CLEARSTALL, DISABLECLOSEDLOOP, DISABLESTALLGUARD,
+    ACK, CHECKORIENTATION, CLEARSTALL, DISABLECLOSEDLOOP, DISABLESTALLGUARD, ENCODERZERO,
     ENABLECLOSEDLOOP, ENABLESTALLGUARD, FLAG_BUSY, FLAGS_AT_BOOT, HOME, IDENTITY, MOVEANGLE,
     MOVESTEPS, MOVETOANGLE, PING, PROTOCOL, PROTOCOL_VERSION, SETBRAKEMODE, SETCURRENT, SETHOLDCURRENT,
     SETMAXACCELERATION, SETMAXDECELERATION, SETMAXVELOCITY, SETRPM, SETUP, SPEC_HASH, WATCHDOG,
@@ -160,14 +161,30 @@ def init(core, hal, clock, cfg, log, critical):
         core._start_task("boot", _boot(core), core.stops)
 
 
+def encoder_table(values, counts_per_rev):
+    """The HAL's form of a calibration table (MotorHAL._corrected): `values`, the encoder's error in
+    motor millidegrees at len(values) equally spaced angles of its turn (a power of two, at most
+    `counts_per_rev`), as array("h") [shift, errors in counts..., the first again], an angle being
+    2**shift counts."""
+    n = len(values)
+    table = array("h", bytes(2 * n + 4))
+    while n << table[0] < counts_per_rev:
+        table[0] += 1
+    for i in range(n):
+        table[i + 1] = (values[i] * counts_per_rev + (180000 if values[i] >= 0 else -180000)) // 360000
+    table[n + 1] = table[1]
+    return table
+
+
 def _boot(core):
     """The boot task, the original setup(): closed loop, boot limits, orientation check, then
     freewheel. This generator is the last holder of this module: it goes once the task ends."""
     hal = core.hal
     boot = core.cfg.boot
-    hal.set_encoder_correction(core.cfg.encoder.correction)
+    correction = core.cfg.encoder.correction
+    hal.set_encoder_correction(encoder_table(correction, hal._encoder_cpr) if correction else None)
     hal.begin()
-    core.store_encoder_zero()
+    store_q(core._cache[ENCODERZERO], hal.encoder_zero(), ANGLE_Q)  # tasks.py's at a homing
     hal.enable_closed_loop()
     core.closed_loop = True
     accel = to_q(boot.max_acceleration, STEPS_Q)

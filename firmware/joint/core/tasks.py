@@ -174,7 +174,8 @@ class Tasks:
             store_q(self._cache[HOMINGTRAVEL], travel, ANGLE_Q)
             hal.set_home()
             self.zero_offset = _usteps_to_angle(wrapped_diff(rest, monitor.deepest))
-            self.store_encoder_zero()
+            # ENCODERZERO: the sensor's own angle where the host's angle is 0 (boot: where begin() zeroed it).
+            store_q(self._cache[ENCODERZERO], (hal.encoder_zero() - self.zero_offset) % (360 << ANGLE_Q), ANGLE_Q)
             self._clear_flags(FLAG_NOTHOMED | FLAG_STALL)
             self.log.info("homed")
         else:
@@ -188,12 +189,6 @@ class Tasks:
         hal.set_current(self.drive_current)
         hal.set_hold_current(self.hold_current)
         self._forget_motion()
-
-    def store_encoder_zero(self):
-        """ENCODERZERO's reply: the encoder's own angle (Q12 degrees in its turn) where the host's
-        angle is 0, after the HAL zeroed it (boot, homing)."""
-        zero = (self.hal.encoder_zero() - self.zero_offset) % (360 << ANGLE_Q)
-        store_q(self._cache[ENCODERZERO], zero, ANGLE_Q)
 
     def _rest_check(self):
         """The homing's settle, doubling as a check in its second half (the first lets a link that

@@ -20,8 +20,6 @@ allocate on the board. A backend that models in floats converts at its boundary
 (sim/fixed_hal.py).
 """
 
-from array import array
-
 FULL_STEPS_PER_REV = 200
 MICROSTEPS = 256
 USTEPS_PER_REV = FULL_STEPS_PER_REV * MICROSTEPS
@@ -41,27 +39,13 @@ class MotorHAL:
     correction (`set_encoder_correction`, `_corrected`), which needs `_encoder_cpr`, the encoder's
     counts per turn (a power of two)."""
 
-    # The calibrated error in counts: [shift, error at angle 0, 1, ... n - 1, at 0 again], an angle
-    # being a step of 2**shift counts (None: the sensor as it reads). One attribute, one name: each
-    # name is a qstr the board keeps for good.
+    # The calibrated error in counts (controller_init.encoder_table; None: the sensor as it reads).
+    # One attribute, one name: each name is a qstr the board keeps for good.
     _encoder_table = None
 
-    def set_encoder_correction(self, values):
+    def set_encoder_correction(self, table):
         """Subtract the encoder's calibrated error from every reading from now on (call before
-        begin()): `values`, the error in motor millidegrees at len(values) equally spaced angles
-        of the sensor's own turn from its zero (a power of two, at most the counts per turn;
-        empty: no correction), linearly interpolated between them. Boot only: allocates."""
-        n = len(values)
-        if not n:
-            self._encoder_table = None
-            return
-        cpr = self._encoder_cpr
-        table = array("h", bytes(2 * n + 4))
-        while n << table[0] < cpr:
-            table[0] += 1
-        for i in range(n):
-            table[i + 1] = (values[i] * cpr + (180000 if values[i] >= 0 else -180000)) // 360000
-        table[n + 1] = table[1]
+        begin()): `table`, controller_init.encoder_table's for this encoder, or None."""
         self._encoder_table = table
 
     def _corrected(self, raw):

@@ -98,8 +98,7 @@ def _velocity_mode(rs: ptr32, rpm: int, den: int, limit: int):
 class PicoStepper(MotorHAL):
     """The uStepper library's behaviour on Pico hardware objects passed in (fakes in tests)."""
 
-    _encoder_cpr = 4096
-    _encoder_error = 0  # counts: the calibrated error at the last reading, already taken off the count
+    _encoder_cpr = 4096  # _encoder_error (begin): the calibrated error at the last reading, off the count
 
     def __init__(self, driver, encoder, steps, enable=None, clock=None, update_hz=1000,
                  rsense_ohm=0.11, full_scale_ma=1500, encoder_slow_filter=3, encoder_fast_threshold=0):

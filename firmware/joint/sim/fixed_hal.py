@@ -96,8 +96,8 @@ class FixedPointHAL(MotorHAL):
     def field_position(self):
         return self.motor.field_position()
 
-    def set_encoder_correction(self, millideg):
-        self.motor.set_encoder_correction(millideg)
+    def set_encoder_correction(self, table):
+        self.motor.set_encoder_correction(table)
 
     def encoder_zero(self):
         return to_q(self.motor.encoder_zero(), ANGLE_Q)
