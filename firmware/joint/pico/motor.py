@@ -98,7 +98,8 @@ def _velocity_mode(rs: ptr32, rpm: int, den: int, limit: int):
 class PicoStepper(MotorHAL):
     """The uStepper library's behaviour on Pico hardware objects passed in (fakes in tests)."""
 
-    _encoder_cpr = 4096  # _encoder_error (begin): the calibrated error at the last reading, off the count
+    _encoder_cpr = 4096  # AS5600 counts per turn (begin() sets _encoder_error, the calibrated error
+    # at the last reading, which the count already has taken off)
 
     def __init__(self, driver, encoder, steps, enable=None, clock=None, update_hz=1000,
                  rsense_ohm=0.11, full_scale_ma=1500, encoder_slow_filter=3, encoder_fast_threshold=0):
