@@ -86,9 +86,9 @@ def sweep(joint: Joint, bus: Bus, direction: int, *, rpm: float = SPEED_RPM, tur
                 break
         if bus.monotonic() > deadline:
             joint.stop()
-            raise IncorrectStateError(f"turned {abs(degrees[-1] - start) if degrees and start is not None else 0:.0f} "
-                                      f"of {turns * 360:.0f} motor degrees in {duration:.0f} s: is the motor "
-                                      f"free to turn?", joint=joint.name)
+            turned = abs(degrees[-1] - degrees[0]) if degrees else 0.0
+            raise IncorrectStateError(f"turned {turned:.0f} of {turns * 360:.0f} motor degrees in twice the "
+                                      f"{duration:.0f} s it takes: is the motor free to turn?", joint=joint.name)
         bus.sleep(sample_s)
     halt(joint, bus, deadline + 5.0)
     return Sweep(direction, np.array(times), np.array(degrees))

@@ -28,12 +28,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace, session: Session) -> int:
     name = args.joint
-    arm = _ready_arm(session, name)
-    jc = arm[name].config
-    before, zero = _measure(arm, name)
-    bus = arm.bus
+    jc = session.config.joints[name]
+    bus = session.bus
     source = f"{name}'s configuration file"
-    config_file = bus.joint_config_file(jc.address)
+    config_file = bus.joint_config_file(jc.address)  # first: a bus that cannot store the table turns nothing
+    arm = _ready_arm(session, name)
+    before, zero = _measure(arm, name)
     table = calibration.combined(calibration.correction_in(config_file, source), before.table_millideg())
     updated = calibration.with_correction(config_file, table, source)
     arm.release()
