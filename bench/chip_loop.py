@@ -46,7 +46,6 @@ _ALLOC_SUM = const(3)
 _ALLOC_CALLS = const(4)
 _START = const(5)
 _DURATION = const(6)
-_HEAP_FREE = const(7)
 _COLLECTIONS = const(8)
 _GC_ITERATION_MAX = const(9)
 _LAST_START = const(10)
@@ -144,15 +143,13 @@ def _timed_service(self):
 def _first_poll(self):
     s = _s
     if s[_PHASE] == 0:
-        # The joint is built, on the bus, its console up: enable it as a host would, collect, note
-        # the heap, start measuring.
+        # The joint is built, on the bus, its console up: enable it as a host would, start measuring.
         self.core.on_frame(_SETUP, len(_SETUP))
         if s[_TRACE]:
             self.core.set_stall_detector("original")
             self.core.on_frame(_STALLGUARD, len(_STALLGUARD))
             self.execute("trace", ["on"])
         gc.collect()
-        s[_HEAP_FREE] = gc.mem_free()
         s[_PHASE] = 1
     return _poll(self)
 
@@ -167,10 +164,9 @@ def _percentile(hist, count, fraction):
     return _BUCKETS
 
 
-def run(duration_ms=5000, own_heap=0, trace=False):
-    """Run the joint's main loop for `duration_ms` (emulated) and print the figures.
-    `own_heap`: bytes this module occupies, added back to the heap figure; `trace`: with the
-    original detector sampling and its trace on the console."""
+def run(duration_ms=5000, trace=False):
+    """Run the joint's main loop for `duration_ms` (emulated) and print the figures. `trace`: with
+    the original detector sampling and its trace on the console."""
     s = _s
     s[_DURATION] = duration_ms * 1000
     s[_TRACE] = 1 if trace else 0
@@ -188,7 +184,6 @@ def run(duration_ms=5000, own_heap=0, trace=False):
         s[_COLLECTIONS] += 1  # one that never stalled the loop past STALL_US
     median_iteration = _percentile(_iteration_hist, s[_ITERATIONS], 0.5)
     gc_pause = max(0, s[_GC_ITERATION_MAX] - median_iteration) if s[_GC_ITERATION_MAX] else 0
-    print("chip.heap_free_after_boot_kb", (s[_HEAP_FREE] + own_heap) / 1024)
     print("chip.service_us_median", _percentile(_service_hist, s[_CALLS], 0.5))
     print("chip.service_us_p99", _percentile(_service_hist, s[_CALLS], 0.99))
     print("chip.service_us_max", s[_SERVICE_MAX])
