@@ -26,6 +26,7 @@ from ..links.cp_target import CircuitPythonTargetAdapter
 from ..console.debug import DebugConsole
 from ..config.settings import CONFIG_FILE
 from .clock import TICKS_PERIOD, TickClock
+from .hardware import EncoderBus, no_bus
 
 SLOW_EVERY_MASK = 3  # the console: every 4th iteration
 QUIET_MS = 3  # a collection waits for this many millisecond ticks without a request ...
@@ -48,6 +49,10 @@ def boot(config_path=CONFIG_FILE):
     import time
     import supervisor
 
+    from ..core import loop, tasks
+    from .fixed import store_q
+
+    loop.store_q = tasks.store_q = store_q  # the core's reply-cache packing, without allocating
     clock = TickClock(supervisor.ticks_ms)
     core, cfg, log = startup.build(None, config_path, clock,
                                    motor_builder=lambda cfg: build_motor(cfg, clock))
@@ -185,7 +190,8 @@ def run(config_path=CONFIG_FILE, meter_every=0):
     if meter is not None:
         meter.base = gc.mem_alloc()
     log.info("CircuitPython joint: %d bytes of heap free" % gc.mem_free())
-    serve = link.poll if link is not None else _nothing
+    serve = link.poll if link is not None else no_bus
+    EncoderBus.serve = serve  # the bus served mid-iteration too, right after the encoder's read
     turn = 0
     quiet_since = ticks_ms()
     every = 0  # iterations between collections: set after CALIBRATE iterations
@@ -239,10 +245,6 @@ def _period(free_before, gc):
     per_iteration = (free_before - gc.mem_free()) // CALIBRATE + 1
     gc.collect()
     return max(1, gc.mem_free() // (HEAP_SHARE * per_iteration)), per_iteration
-
-
-def _nothing():
-    return False
 
 
 def _refuse_protocol(core, log):
