@@ -8,7 +8,10 @@ Each request is an object CircuitPython allocates, and a write's bytes another; 
 out through one of the memoryviews made here, so nothing else allocates.
 """
 
+from ..micro import const
 from ..spec.protocol import MAX_FRAME, MAX_REPLY
+
+READ_WAIT_POLLS = const(8)  # request() calls (~30 us each on the chip) waiting for a write's read
 
 
 class CircuitPythonTargetAdapter:
@@ -22,12 +25,26 @@ class CircuitPythonTargetAdapter:
         self.served = 0  # requests answered (wraps like the core's counters)
 
     def poll(self):
-        """Serve at most one pending request; returns True if there was one."""
+        """Serve a pending request, and after a write the read that follows it; returns True if
+        there was one."""
         request = self._target.request(timeout=-1)
         if request is None:
             return False
+        if not self._serve(request):
+            # The host reads its reply right after the write (repeated START): wait for the
+            # read here, a few address-byte times, instead of leaving SCL held until the next poll.
+            for _ in range(READ_WAIT_POLLS):
+                request = self._target.request(timeout=-1)
+                if request is not None:
+                    self._serve(request)
+                    break
+        return True
+
+    def _serve(self, request):
+        """Answer `request` (closed on return); returns whether it was a read."""
         with request:
-            if request.is_read:
+            is_read = request.is_read
+            if is_read:
                 request.write(self._tails[self._core.reply_into(self._reply)])
             else:
                 data = request.read()
@@ -38,7 +55,7 @@ class CircuitPythonTargetAdapter:
                 self._core.on_frame(frame, n)
         self._core.host_seen()
         self.served = (self.served + 1) & 0x3FFFFFFF
-        return True
+        return is_read
 
     def deinit(self):
         self._target.deinit()
