@@ -11,7 +11,9 @@ CircuitPython (the bus is served by the loop itself), so a reply never sees half
 
 def store_q(buf, n, q):
     """float32(n / 2**q) little-endian into buf[0:4] for |n| <= fixed.LIMIT, 0 <= q <= 30,
-    exactly struct.pack("<f", n / 2**q): motion.fixed.store_q's rounding, byte by byte."""
+    exactly struct.pack("<f", n / 2**q) (rounded to nearest, ties to even, beyond 2**24). The
+    top bit is found by halving steps rather than by motion.fixed's shifting loops: no loop, so
+    every value costs the same few bytecodes."""
     if n == 0:
         buf[0] = buf[1] = buf[2] = buf[3] = 0
         return
@@ -19,29 +21,31 @@ def store_q(buf, n, q):
     if n < 0:
         sign = 0x80
         n = -n
-    e = 150 - q  # the biased exponent of the mantissa's lowest bit
-    if n >= 0x1000000:
-        s = 1
-        while (n >> s) >= 0x1000000:
-            s += 1
-        m = n >> s
-        rest = n - (m << s)
-        half = 1 << (s - 1)
-        if rest > half or (rest == half and m & 1):
-            m += 1
-            if m == 0x1000000:
-                m = 0x800000
-                s += 1
-        e += s
+    top = 0  # the index of n's highest set bit, 0..29
+    if n >> 16:
+        top = 16
+    if n >> (top + 8):
+        top += 8
+    if n >> (top + 4):
+        top += 4
+    if n >> (top + 2):
+        top += 2
+    if n >> (top + 1):
+        top += 1
+    exponent = 127 + top - q  # biased: the value's highest bit is 2**(top - q)
+    if top > 23:  # more than the 24 bits of a float32's mantissa: round to nearest, ties to even
+        shift = top - 23
+        mantissa = n >> shift
+        rest = n - (mantissa << shift)
+        half = 1 << (shift - 1)
+        if rest > half or (rest == half and mantissa & 1):
+            mantissa += 1
+            if mantissa == 0x1000000:  # rounded up to the next power of two
+                mantissa = 0x800000
+                exponent += 1
     else:
-        m = n
-        while m < 0x8000:
-            m <<= 8
-            e -= 8
-        while m < 0x800000:
-            m <<= 1
-            e -= 1
-    buf[0] = m & 0xFF
-    buf[1] = (m >> 8) & 0xFF
-    buf[2] = ((m >> 16) & 0x7F) | ((e & 1) << 7)
-    buf[3] = (e >> 1) | sign
+        mantissa = n << (23 - top)
+    buf[0] = mantissa & 0xFF
+    buf[1] = (mantissa >> 8) & 0xFF
+    buf[2] = ((mantissa >> 16) & 0x7F) | ((exponent & 1) << 7)
+    buf[3] = (exponent >> 1) | sign
