@@ -71,13 +71,14 @@ def join_bus(core, cfg, log):
     i2c = cfg.i2c
     try:
         import i2ctarget
-        from .hardware import gpio
+        from .hardware import TargetFifo, gpio
         target = i2ctarget.I2CTarget(gpio(i2c.scl), gpio(i2c.sda), (cfg.address,))
+        fifo = TargetFifo(i2c.sda)
     except (ValueError, OSError, RuntimeError, ImportError) as exc:
         log.error("cannot join the bus as I2C target 0x%02x (SDA %d, SCL %d): %r"
                   % (cfg.address, i2c.sda, i2c.scl, exc))
         return None
-    return CircuitPythonTargetAdapter(core, target)
+    return CircuitPythonTargetAdapter(core, target, fifo)
 
 
 class SerialConsole:

@@ -4,20 +4,23 @@ CircuitPython has no I2C IRQ callbacks and no memory-mode target: `i2ctarget.I2C
 low on a read (and on a full RX FIFO) until Python answers `request()`, so the host waits for the
 main loop (reference/i2c-facts.md sections 3-4: Raspberry Pi 0-3 controllers mishandle that).
 The loop calls `poll()` between its steps, and the longest step sets how long SCL is held.
-Each request is an object CircuitPython allocates, and a write's bytes another; the reply goes
-out through one of the memoryviews made here, so nothing else allocates.
+Each request is an object CircuitPython allocates, a write's bytes another and each look at the
+RX FIFO's registers a third; the reply goes out through one of the memoryviews made here, so
+nothing else allocates.
 """
 
 from ..micro import const
 from ..spec.protocol import MAX_FRAME, MAX_REPLY
 
+WRITE_WAIT_POLLS = const(16)  # checks (~40 us each) for the end of a write: 5 bytes at 100 kHz
 READ_WAIT_POLLS = const(8)  # request() calls (~30 us each on the chip) waiting for a write's read
 
 
 class CircuitPythonTargetAdapter:
-    def __init__(self, core, target):
+    def __init__(self, core, target, fifo):
         self._core = core
         self._target = target
+        self._fifo = fifo  # the bus's RX FIFO level and end of write (cpy/hardware.TargetFifo)
         self._frame = bytearray(MAX_FRAME)
         self._reply = bytearray(MAX_REPLY)
         whole = memoryview(self._reply)
@@ -47,7 +50,15 @@ class CircuitPythonTargetAdapter:
             if is_read:
                 request.write(self._tails[self._core.reply_into(self._reply)])
             else:
-                data = request.read()
+                # The bytes the write left, once it has ended: read() without a count costs
+                # about 1 ms more (cpy/hardware.TargetFifo), and the host waits, SCL held.
+                fifo = self._fifo
+                for _ in range(WRITE_WAIT_POLLS):
+                    if fifo.write_ended():
+                        data = request.read(fifo.rx_level())
+                        break
+                else:
+                    data = request.read()  # still being written: read() waits for its end
                 n = len(data)
                 frame = self._frame
                 for i in range(n if n < MAX_FRAME else MAX_FRAME):
