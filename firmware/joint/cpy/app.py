@@ -26,7 +26,7 @@ from ..links.cp_target import CircuitPythonTargetAdapter
 from ..console.debug import DebugConsole
 from ..config.settings import CONFIG_FILE
 from .clock import TICKS_PERIOD, TickClock
-from .hardware import EncoderBus, no_bus
+from .hardware import EncoderBus, StepMachine, no_bus
 
 SLOW_EVERY_MASK = 3  # the console: every 4th iteration
 QUIET_MS = 3  # a collection waits for this many millisecond ticks without a request ...
@@ -192,7 +192,8 @@ def run(config_path=CONFIG_FILE, meter_every=0):
         meter.base = gc.mem_alloc()
     log.info("CircuitPython joint: %d bytes of heap free" % gc.mem_free())
     serve = link.poll if link is not None else no_bus
-    EncoderBus.serve = serve  # the bus served mid-iteration too, right after the encoder's read
+    # The bus served mid-iteration too: after the encoder's read and after a step burst is queued.
+    EncoderBus.serve = StepMachine.serve = serve
     turn = 0
     quiet_since = ticks_ms()
     every = 0  # iterations between collections: set after CALIBRATE iterations
