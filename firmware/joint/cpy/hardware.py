@@ -145,13 +145,17 @@ def tx_fifo(dir_pin, step_pin):
 _I2C_BASES = (0x40044000, 0x40048000)  # I2C0, I2C1 (RP2040 datasheet 2.2)
 _IC_RAW_INTR_STAT = const(0x34)
 _IC_RXFLR = const(0x78)
+_READING = const(0x20)  # RD_REQ (bit 5), in the register's 1st byte
 _WRITE_ENDED = const(0x12)  # RESTART_DET (bit 12) or STOP_DET (bit 9), in the register's 2nd byte
 
 
 class TargetFifo:
     """What links/cp_target.py needs of the joint bus's I2C block that i2ctarget does not say
-    (RP2040 datasheet 4.3): whether the host's write has ended (a repeated START or a STOP since
-    it began) and how many bytes it left in the RX FIFO. A request's read() without a count
+    (RP2040 datasheet 4.3): whether the host's write has ended (the host reads, or a repeated
+    START or a STOP since it began) and how many bytes it left in the RX FIFO. RD_REQ counts
+    first: i2ctarget's request() clears RESTART_DET with the STOP_DET of the transaction before,
+    so a request polled late finds the repeated START of its own transaction cleared (every such
+    write then waited out the checks and read() without a count: 1.85 ms and more, measured). A request's read() without a count
     returns only after reading the empty FIFO once more, which took about 1 ms on the emulated
     chip; read(n) of what is there, 30-60 us. Each register read makes a 4-byte bytes object."""
 
@@ -163,7 +167,8 @@ class TargetFifo:
                                             length=_IC_RXFLR + 4 - _IC_RAW_INTR_STAT)
 
     def write_ended(self):
-        return self._regs[0:4][1] & _WRITE_ENDED
+        raw = self._regs[0:4]
+        return raw[0] & _READING or raw[1] & _WRITE_ENDED
 
     def rx_level(self):
         return self._regs[_IC_RXFLR - _IC_RAW_INTR_STAT:_IC_RXFLR - _IC_RAW_INTR_STAT + 4][0]
