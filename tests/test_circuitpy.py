@@ -184,3 +184,23 @@ def test_mixed_up_options_get_a_clear_error(args: list[str], message: str, capsy
 ])
 def test_ports_tells_the_runtime_from_the_usb_identity(identity: tuple, runtime: str | None) -> None:
     assert runtime_of(*identity) == runtime
+
+
+def test_circuitpython_store_q_packs_the_bytes_the_firmware_packs() -> None:
+    """cpy/fixed.store_q (byte by byte, small ints only) writes exactly the float32 that
+    motion.fixed.store_q and struct.pack write, across every exponent and the rounding edges."""
+    import random
+    import struct
+
+    from bioscara.firmware.cpy.fixed import store_q as cp_store_q
+    from bioscara.firmware.motion.fixed import LIMIT, store_q
+
+    rng = random.Random(22)
+    values = [0, 1, -1, LIMIT, -LIMIT, 0xFFFFFF, 0x1000000, 0x1000001, 0x1FFFFFF, 0x2000003, 0x3FFFFFE]
+    values += [rng.randrange(-LIMIT, LIMIT + 1) >> rng.randrange(31) for _ in range(3000)]
+    for n in values:
+        for q in (0, 12, 16, 30):
+            mine, theirs = bytearray(4), bytearray(4)
+            cp_store_q(mine, n, q)
+            store_q(theirs, n, q)
+            assert mine == theirs == struct.pack("<f", n / 2**q), (n, q)

@@ -9,6 +9,6 @@ MAIN = "cpy/board_code.py"
 FILES = (
     "__init__.py", "app.py", "micro.py", "startup.py",
     "spec/", "core/", "motion/", "detect/", "console/", "config/", "pico/",
-    "cpy/__init__.py", "cpy/app.py", "cpy/clock.py", "cpy/hardware.py",
+    "cpy/__init__.py", "cpy/app.py", "cpy/clock.py", "cpy/fixed.py", "cpy/hardware.py",
     "links/__init__.py", "links/cp_target.py", "links/i2c_target.py", "links/memmap_v2.py",
 )

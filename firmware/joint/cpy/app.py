@@ -26,6 +26,7 @@ from ..links.cp_target import CircuitPythonTargetAdapter
 from ..console.debug import DebugConsole
 from ..config.settings import CONFIG_FILE
 from .clock import TICKS_PERIOD, TickClock
+from .hardware import EncoderBus, StepMachine, no_bus
 
 SLOW_EVERY_MASK = 3  # the console: every 4th iteration
 QUIET_MS = 3  # a collection waits for this many millisecond ticks without a request ...
@@ -48,6 +49,10 @@ def boot(config_path=CONFIG_FILE):
     import time
     import supervisor
 
+    from ..core import loop, tasks
+    from .fixed import store_q
+
+    loop.store_q = tasks.store_q = store_q  # the core's reply-cache packing, without allocating
     clock = TickClock(supervisor.ticks_ms)
     core, cfg, log = startup.build(None, config_path, clock,
                                    motor_builder=lambda cfg: build_motor(cfg, clock))
@@ -66,13 +71,14 @@ def join_bus(core, cfg, log):
     i2c = cfg.i2c
     try:
         import i2ctarget
-        from .hardware import gpio
+        from .hardware import TargetFifo, gpio
         target = i2ctarget.I2CTarget(gpio(i2c.scl), gpio(i2c.sda), (cfg.address,))
+        fifo = TargetFifo(i2c.sda)
     except (ValueError, OSError, RuntimeError, ImportError) as exc:
         log.error("cannot join the bus as I2C target 0x%02x (SDA %d, SCL %d): %r"
                   % (cfg.address, i2c.sda, i2c.scl, exc))
         return None
-    return CircuitPythonTargetAdapter(core, target)
+    return CircuitPythonTargetAdapter(core, target, fifo)
 
 
 class SerialConsole:
@@ -185,7 +191,9 @@ def run(config_path=CONFIG_FILE, meter_every=0):
     if meter is not None:
         meter.base = gc.mem_alloc()
     log.info("CircuitPython joint: %d bytes of heap free" % gc.mem_free())
-    serve = link.poll if link is not None else _nothing
+    serve = link.poll if link is not None else no_bus
+    # The bus served mid-iteration too: after the encoder's read and after a step burst is queued.
+    EncoderBus.serve = StepMachine.serve = serve
     turn = 0
     quiet_since = ticks_ms()
     every = 0  # iterations between collections: set after CALIBRATE iterations
@@ -239,10 +247,6 @@ def _period(free_before, gc):
     per_iteration = (free_before - gc.mem_free()) // CALIBRATE + 1
     gc.collect()
     return max(1, gc.mem_free() // (HEAP_SHARE * per_iteration)), per_iteration
-
-
-def _nothing():
-    return False
 
 
 def _refuse_protocol(core, log):

@@ -4,17 +4,23 @@ CircuitPython has no I2C IRQ callbacks and no memory-mode target: `i2ctarget.I2C
 low on a read (and on a full RX FIFO) until Python answers `request()`, so the host waits for the
 main loop (reference/i2c-facts.md sections 3-4: Raspberry Pi 0-3 controllers mishandle that).
 The loop calls `poll()` between its steps, and the longest step sets how long SCL is held.
-Each request is an object CircuitPython allocates, and a write's bytes another; the reply goes
-out through one of the memoryviews made here, so nothing else allocates.
+Each request is an object CircuitPython allocates, a write's bytes another and each look at the
+RX FIFO's registers a third; the reply goes out through one of the memoryviews made here, so
+nothing else allocates.
 """
 
+from ..micro import const
 from ..spec.protocol import MAX_FRAME, MAX_REPLY
+
+WRITE_WAIT_POLLS = const(16)  # checks (~40 us each) for the end of a write: 5 bytes at 100 kHz
+READ_WAIT_POLLS = const(8)  # request() calls (~30 us each on the chip) waiting for a write's read
 
 
 class CircuitPythonTargetAdapter:
-    def __init__(self, core, target):
+    def __init__(self, core, target, fifo):
         self._core = core
         self._target = target
+        self._fifo = fifo  # the bus's RX FIFO level and end of write (cpy/hardware.TargetFifo)
         self._frame = bytearray(MAX_FRAME)
         self._reply = bytearray(MAX_REPLY)
         whole = memoryview(self._reply)
@@ -22,15 +28,37 @@ class CircuitPythonTargetAdapter:
         self.served = 0  # requests answered (wraps like the core's counters)
 
     def poll(self):
-        """Serve at most one pending request; returns True if there was one."""
+        """Serve a pending request, and after a write the read that follows it; returns True if
+        there was one."""
         request = self._target.request(timeout=-1)
         if request is None:
             return False
+        if not self._serve(request):
+            # The host reads its reply right after the write (repeated START): wait for the
+            # read here, a few address-byte times, instead of leaving SCL held until the next poll.
+            for _ in range(READ_WAIT_POLLS):
+                request = self._target.request(timeout=-1)
+                if request is not None:
+                    self._serve(request)
+                    break
+        return True
+
+    def _serve(self, request):
+        """Answer `request` (closed on return); returns whether it was a read."""
         with request:
-            if request.is_read:
+            is_read = request.is_read
+            if is_read:
                 request.write(self._tails[self._core.reply_into(self._reply)])
             else:
-                data = request.read()
+                # The bytes the write left, once it has ended: read() without a count costs
+                # about 1 ms more (cpy/hardware.TargetFifo), and the host waits, SCL held.
+                fifo = self._fifo
+                for _ in range(WRITE_WAIT_POLLS):
+                    if fifo.write_ended():
+                        data = request.read(fifo.rx_level())
+                        break
+                else:
+                    data = request.read()  # still being written: read() waits for its end
                 n = len(data)
                 frame = self._frame
                 for i in range(n if n < MAX_FRAME else MAX_FRAME):
@@ -38,7 +66,7 @@ class CircuitPythonTargetAdapter:
                 self._core.on_frame(frame, n)
         self._core.host_seen()
         self.served = (self.served + 1) & 0x3FFFFFFF
-        return True
+        return is_read
 
     def deinit(self):
         self._target.deinit()
