@@ -22,6 +22,7 @@ table's other bytes) is written once here and only read after.
 import struct
 from array import array
 
+from ..micro import board_module
 from ..motion.fixed import ANGLE_Q, STEPS_Q, store_q, to_q
 from ..detect.homing import HomingMonitor
 from .irq_init import init as init_irq
@@ -80,9 +81,10 @@ def init(core, hal, clock, cfg, log, critical):
     core.load = None  # the slow-contact detector, on joints that configure it (imported then only)
     if st.load_limit:
         try:
-            from ..detect.load_angle import LoadAngleDetector
-            core.load = LoadAngleDetector(st.load_limit, st.load_confirm, st.load_clip)
-        except ImportError:  # the S32 image leaves it out (flash): the drive current bounds contacts
+            # By name: the S32 image leaves it out (flash), and its drive current bounds contacts.
+            load_angle = board_module(__name__[:-len(".core.controller_init")], "detect.load_angle")
+            core.load = load_angle.LoadAngleDetector(st.load_limit, st.load_confirm, st.load_clip)
+        except ImportError:
             log.warn("stall.load_limit: no slow-contact detector in this image")
     core.detector = DETECTOR_NAMES.index(st.detector) if st.detector in DETECTOR_NAMES else 0
     core.homing = HomingMonitor(cfg.homing, st)
