@@ -131,7 +131,7 @@ class SimJointsBoard(FakeBoard):
 @pytest.fixture
 def i2c_only(bus: SimBus) -> SimBus:
     """The simulated arm as a real bus is: the joints' I2C, not their configuration files."""
-    bus.reaches_config_files = False  # type: ignore[misc]
+    bus.reaches_config_files = False
     return bus
 
 
@@ -208,7 +208,7 @@ def test_a_missing_port_an_s32_the_bridges_port_and_a_port_on_the_simulator_are_
     rotor = bus.joint(0x11).stepper.load_angle()
     code, _, err = run(capsys, "calibrate", "j1", "--port", "/dev/ttyACM0", bus=bus)
     assert code == 2 and "reaches the simulated joints' configuration files itself: give no --port" in err
-    bus.reaches_config_files = False  # type: ignore[misc]
+    bus.reaches_config_files = False
     missing = str(tmp_path / "ttyACM9")
     code, _, err = run(capsys, "calibrate", "j1", "--port", missing, bus=bus)
     assert code == 1 and f"serial port {missing} does not exist" in err and len(err.strip().splitlines()) == 1
