@@ -53,6 +53,7 @@ class FakeBoard:
         self.log: list[tuple[str, str]] = []
         self.corrupt: set[str] = set()  # writes to these paths arrive damaged
         self.import_error: str | None = None
+        self.unplugged_at: str | None = None  # the operation ("write", "rename") at which the port goes away
 
     def info(self) -> mpboard.BoardInfo:
         return self._info
@@ -61,8 +62,13 @@ class FakeBoard:
         return {path: hashlib.sha256(data).hexdigest() for path, data in self.files.items()
                 if any(path == p or path.startswith(p + "/") for p in paths)}
 
+    def _use(self, operation: str, path: str) -> None:
+        if self.unplugged_at == operation:
+            raise mpboard.FlashError(f"{operation} {path} on {self.port} failed: [Errno 5] Input/output error")
+        self.log.append((operation, path))
+
     def write(self, path: str, data: bytes, progress: Callable[[int], None] | None = None) -> None:
-        self.log.append(("write", path))
+        self._use("write", path)
         self.files[path] = data[:-1] + b"!" if path in self.corrupt else data
         if progress:
             progress(len(data))
@@ -73,6 +79,10 @@ class FakeBoard:
     def remove(self, path: str) -> None:
         self.log.append(("remove", path))
         del self.files[path]
+
+    def rename(self, path: str, new_path: str) -> None:
+        self._use("rename", path)
+        self.files[new_path] = self.files.pop(path)
 
     def check_import(self, module: str) -> None:
         self.log.append(("import", module))
@@ -554,6 +564,22 @@ def test_mpremote_board_flashes_the_unix_port(unix_port_serial, tmp_path):
     assert not (root / "joint" / "gone.py").exists()
     for path, data in plan.image.files.items():
         assert (root / path.lstrip("/")).read_bytes() == data, path
+
+
+def test_mpremote_board_replaces_the_joint_config_of_the_unix_port_whole(unix_port_serial, tmp_path):
+    """`calibrate --port`'s write: the new file beside the old, renamed over it, nothing left behind."""
+    root = tmp_path / "fs"
+    config = firmware_flash.joint_config("J2")[0]
+    (root / "joint_config.json").write_bytes(config)
+    board = UnixPortBoard(unix_port_serial, root=str(root), soft_reset=False)
+    try:
+        with pytest.raises(mpboard.FlashError, match="is j2's board \\(I2C 0x12\\), not j1's"):
+            firmware_flash.update_config(board, "J1", 0x11, lambda old: pytest.fail("nothing is changed"))
+        updated = firmware_flash.update_config(board, "J2", 0x12, lambda old: old.replace(b"{", b'{"x": 1, ', 1))
+    finally:
+        board.close()
+    assert (root / "joint_config.json").read_bytes() == updated and json.loads(updated)["x"] == 1
+    assert sorted(p.name for p in root.iterdir()) == ["joint_config.json"]
 
 
 def test_a_joint_config_the_user_wrote_is_validated_then_deployed(capsys, monkeypatch, tmp_path):

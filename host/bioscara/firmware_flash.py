@@ -363,6 +363,47 @@ def verify(board: Board, plan: Plan, roots: tuple[str, ...] = MANAGED) -> None:
             raise FlashError(f"verification failed: the stale file {path} is still on the board")
 
 
+# ---- the joint's configuration file alone (`bioscara calibrate JOINT --port PORT`) ----
+
+def update_config(board: Board, joint: str, address: int, change: Callable[[bytes], bytes]) -> bytes:
+    """Replace the board's /joint_config.json with `change(the file on the board)` and reset the
+    board, so that its firmware reads it; the new file is returned.
+
+    The board must be `joint`'s: its configuration names that joint and I2C `address` (what
+    `bioscara ports` and `flash` go by). The file is written beside the old one, verified by its
+    SHA-256, renamed over it (a board that loses its port or power on the way keeps one whole
+    configuration, old or new) and verified again. FlashError, with the board's configuration
+    unchanged, for another joint's board or a port that fails before the rename."""
+    current = board.read(CONFIG_PATH) or b""
+    found = firmware_config.parse_bytes(current, CONFIG_PATH)
+    if not found.valid:
+        raise FlashError(f"{board.port} has no valid {CONFIG_PATH}: nothing was written (flash the joint "
+                         f"first: bioscara flash {board.port} --joint {joint.lower()})")
+    if (found.joint, found.address) != (joint, address):
+        raise FlashError(f"{board.port} is {found.joint.lower()}'s board (I2C 0x{found.address:02x}), not "
+                         f"{joint.lower()}'s (0x{address:02x}): nothing was written; give {joint.lower()}'s "
+                         "port (`bioscara ports` lists them)")
+    updated = change(current)
+    staged = CONFIG_PATH + ".new"
+    try:
+        board.write(staged, updated)
+        _verify_file(board, staged, updated)
+    except FlashError as exc:
+        raise FlashError(f"{exc}; {CONFIG_PATH} is unchanged") from None
+    try:
+        board.rename(staged, CONFIG_PATH)
+    except FlashError as exc:
+        raise FlashError(f"{exc}; {CONFIG_PATH} is whole, the old one or the new one: run it again") from None
+    _verify_file(board, CONFIG_PATH, updated)
+    board.reset()
+    return updated
+
+
+def _verify_file(board: Board, path: str, data: bytes) -> None:
+    if board.hashes((path,)).get(path) != hashlib.sha256(data).hexdigest():
+        raise FlashError(f"verification failed: {path} on {board.port} is not what was written; try again")
+
+
 # ---- the joint's own word, over the bus ----
 
 @dataclass(frozen=True)

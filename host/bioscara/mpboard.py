@@ -77,6 +77,10 @@ class Board(Protocol):
 
     def remove(self, path: str) -> None: ...
 
+    def rename(self, path: str, new_path: str) -> None:
+        """Rename a file, replacing `new_path` in one filesystem operation (littlefs, FAT and POSIX
+        all replace the target atomically), so a reader sees the old file or the new one, whole."""
+
     def check_import(self, module: str) -> None:
         """Import `module` afresh on the board; FlashError with the board's error if that fails."""
 
@@ -192,8 +196,7 @@ class MpremoteBoard:
         except ImportError:
             raise FlashError("mpremote is not installed (pip install mpremote)") from None
         self.port = port
-        if not os.path.exists(port) and not port.upper().startswith("COM"):
-            raise FlashError(open_problem(port, FileNotFoundError(errno.ENOENT, port)))
+        check_port(port)
         if port.startswith("/dev/pts/"):
             _check_answers(port, timeout)
         self._root = root.rstrip("/") + "/"
@@ -264,6 +267,10 @@ class MpremoteBoard:
         except (OSError, *self._errors) as exc:
             raise FlashError(f"removing {path} on {self.port} failed: {_last_line(exc)}") from None
 
+    def rename(self, path: str, new_path: str) -> None:
+        self._exec(f"import os\nos.rename({self._path(path)!r}, {self._path(new_path)!r})",
+                   f"renaming {path} to {new_path}")
+
     def check_import(self, module: str) -> None:
         try:
             self._transport.exec(IMPORT_CHECK.format(module=module))
@@ -283,6 +290,13 @@ class MpremoteBoard:
             self._transport.exit_raw_repl()
             self._transport.serial.write(b"\x04")  # Ctrl-D in the normal REPL: soft reset, runs main.py
         self._transport.close()
+
+
+def check_port(port: str) -> None:
+    """FlashError, in one line, when the serial port `port` does not exist (a Windows COMn is
+    left to the open); nothing is sent, so a joint running on it goes on running."""
+    if not os.path.exists(port) and not port.upper().startswith("COM"):
+        raise FlashError(open_problem(port, FileNotFoundError(errno.ENOENT, port)))
 
 
 def _check_answers(port: str, timeout: float) -> None:

@@ -472,6 +472,7 @@ class ServiceBus(Bus):
     """
 
     scheme = "sim"
+    reaches_config_files = True
 
     def __init__(self, specs: Sequence[SimJointSpec], state_dir: Path, *, seed: int = 1,
                  autostart: bool = True, idle_exit_s: float | None = DEFAULT_IDLE_EXIT_S, **kwargs: Any) -> None:

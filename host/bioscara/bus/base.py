@@ -48,6 +48,9 @@ class Bus(ABC):
     """
 
     scheme = ""
+    # Whether joint_config_file & co. reach the joints' configuration files (the simulated joints');
+    # a real bus reaches the I2C only, the files are on each board (its USB serial port).
+    reaches_config_files = False
 
     def __init__(self, *, attempts: int = 3, speed_hz: int = 400_000) -> None:
         if attempts < 1:
@@ -126,7 +129,7 @@ class Bus(ABC):
 
     def _no_config_file(self) -> str:
         return (f"{self.describe()} reaches the joints' I2C only; a joint's configuration file is on its "
-                f"board (`bioscara flash JOINT --config FILE` writes it over the board's USB)")
+                f"board, reached over the board's USB serial port (`bioscara flash PORT --joint-config FILE`)")
 
     def _await_joint(self, addr: int, timeout: float) -> None:
         deadline = self.monotonic() + timeout

@@ -69,6 +69,7 @@ def build_joint(spec: SimJointSpec, clock: VirtualClock, seed: int, port: str,
 
 class SimBus(Bus):
     scheme = "sim"
+    reaches_config_files = True
 
     def __init__(self, joints: Sequence[SimJointSpec], *, seed: int = 1, realtime: bool = False,
                  port: str = "rp2", **kwargs: Any) -> None:
