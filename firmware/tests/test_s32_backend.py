@@ -414,3 +414,16 @@ def test_the_main_loop_allocates_nothing_on_the_s32_backend():
         j.tick(5)
         got = j.bytes_per_service(300)
         assert got is None or got == 0, "%s: %s bytes per service()" % (name, got)
+
+
+def test_v2_waits_for_a_read_from_this_joint_only():
+    sr2 = 0x40005418  # I2C1's SR2 (RM0368 18.6.7); I2C2's 0x400 above it
+    mem32 = {sr2: 0, sr2 + 0x400: 0}
+    reading = s32_board.read_in_progress(mem32, 1)
+    assert not reading()
+    mem32[sr2] = 0x2  # BUSY alone: another joint's transaction, or this joint's write phase
+    assert not reading()
+    mem32[sr2 + 0x400] = 0x6  # a read on I2C2
+    assert not reading()
+    mem32[sr2] = 0x6  # BUSY and TRA: the host reads this joint's state block
+    assert reading()
