@@ -199,3 +199,15 @@ def test_v2_cycles_a_setpoint_in_and_a_checked_state_block_out(bus: EmulatedS32B
     assert position == pytest.approx(target, abs=slack)
     joint.use_legacy()
     joint.check_com()
+
+
+def test_use_v2_syncs_whatever_the_main_loop_s_phase(bus: EmulatedS32Bus, joint: Joint) -> None:
+    # The sync needs each 1 ms frame acknowledged before the next; the S32's main loop takes
+    # about as long. A swap held off past the next transaction's start (once by the bus's BUSY)
+    # locked onto that start and left every ack two frames behind: the sync never ended.
+    for switch in range(8):
+        bus.sleep(switch * 0.00037)  # a new phase of the main loop against the host's frames
+        joint.use_v2()
+        assert isinstance(joint.link, V2Link) and joint.link.stats.bad_states == 0
+        joint.use_legacy()
+    joint.check_com()

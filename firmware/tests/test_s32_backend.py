@@ -16,6 +16,7 @@ from joint.motion.hal import MAGNET_MISSING, MAGNET_OK
 from joint.links.i2c_target import I2CTargetAdapter
 from joint.console.log import Logger
 from joint.s32 import board as s32_board
+from joint.s32 import v2 as s32_v2
 from joint.s32 import tmc5130 as tmc
 from joint.s32.motor import S32Stepper
 from joint.s32.tle5012b import TLE5012B, crc8, crc_table
@@ -419,7 +420,7 @@ def test_the_main_loop_allocates_nothing_on_the_s32_backend():
 def test_v2_waits_for_a_read_from_this_joint_only():
     sr2 = 0x40005418  # I2C1's SR2 (RM0368 18.6.7); I2C2's 0x400 above it
     mem32 = {sr2: 0, sr2 + 0x400: 0}
-    reading = s32_board.read_in_progress(mem32, 1)
+    reading = s32_v2.read_in_progress(mem32, 1)
     assert not reading()
     mem32[sr2] = 0x2  # BUSY alone: another joint's transaction, or this joint's write phase
     assert not reading()

@@ -16,9 +16,6 @@ CONFIG_SIZE = const(4096)
 CONFIG_SOURCE = "flash 0x0803F000"
 JOINT_BUS = const(1)  # I2C1: PB8 SCL, PB9 SDA
 
-_I2C1_SR2 = const(0x40005418)
-_I2C_BLOCK = const(0x400)  # I2C2 and I2C3 follow I2C1 at this stride
-_SR2_TRA = const(0x4)
 _GPIOC_MODER = const(0x40020800)
 _MOSI3_SHIFT = const(24)  # PC12's two MODER bits
 _SPI_BAUD = const(2_000_000)
@@ -52,21 +49,6 @@ def mosi_release(machine):
         moder = mem32[_GPIOC_MODER] & mask
         mem32[_GPIOC_MODER] = moder if on else moder | (2 << shift)
     return release
-
-
-def read_in_progress(mem32, bus):
-    """A callable true while the host reads from this joint on I2C `bus`: SR2's TRA (RM0368
-    18.6.7), set with the read's address match, before the first byte goes out (SCL is held until
-    the interrupt serves it), cleared by the STOP. v2 publishes its state block while it is false:
-    a block swapped during a read arrives torn. Not BUSY: that covers every transaction on the bus
-    (other joints', this joint's write phase), and the swap that publishes an acknowledgement,
-    deferred past the next transaction's start, left it two frames behind (V2Link.sync failed).
-    Reading SR2 alone clears no flag (ADDR clears on an SR1 then an SR2 read, in the interrupt)."""
-    sr2 = _I2C1_SR2 + (bus - 1) * _I2C_BLOCK
-
-    def reading():
-        return mem32[sr2] & _SR2_TRA
-    return reading
 
 
 def build_stepper(motor_cfg):
