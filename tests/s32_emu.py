@@ -121,7 +121,9 @@ def _i2c_target():
     RXNE*n ADDR TXE*(m+1) AF), on the interrupt CR2 enables for each (event: ITEVTEN, TXE and RXNE
     also ITBUFEN; error: ITERREN), and the registers clear their flags as the manual says (ADDR:
     SR1 read while set, then SR2 read; RXNE: DR read; TXE: DR write; STOPF: SR1 read then CR1 write; errors:
-    written 0), with SR2's BUSY from the START to the STOP and TRA from a read's address match to the STOP. Not modelled: BTF and the byte the shift register holds while DR is full (the
+    written 0), with SR2's BUSY from the START to the STOP (after a read, a bit after the
+    controller's NACK, served or not) and TRA from a read's address match to the STOP (RM0368
+    18.6.7). Not modelled: BTF and the byte the shift register holds while DR is full (the
     controller waits for every event instead: clock stretching without a limit), OVR/UNDR, BERR,
     ARLO, general call, dual addressing, PEC and SMBus."""
     from qiling.hw.i2c.stm32f4xx_i2c import STM32F4xxI2c
