@@ -7,8 +7,8 @@ until the interrupt serves it), and cleared by the STOP; BUSY covers every trans
 (other joints', this joint's write phase). A swap deferred to the next main-loop pass (about 1 ms
 on the S32, as long as the host's sync period) locked onto the start of the host's next
 transaction, which a deferred pass, shorter, reached again: every ack came two frames late and
-`V2Link.sync` never ended. `S32MemLink` waits a read out instead (a state block's read: 9 bytes,
-0.25 ms at 400 kHz), which pushes the next pass away from it.
+`V2Link.sync` never ended. `S32MemLink` waits a read out instead (a state block's read: 8 bytes and
+the NACK, 0.2 ms at 400 kHz), which pushes the next pass away from it.
 """
 
 from ..links.memmap_v2 import MemLink
@@ -17,7 +17,7 @@ from ..micro import const
 _I2C1_SR2 = const(0x40005418)
 _I2C_BLOCK = const(0x400)  # I2C2 and I2C3 follow I2C1 at this stride
 _SR2_TRA = const(0x4)
-_READ_WAIT_US = const(1000)  # longer than a state block's read at 100 kHz (0.9 ms)
+_READ_WAIT_US = const(1000)  # longer than a state block's read at 100 kHz (0.8 ms)
 
 
 def read_in_progress(mem32, bus):
