@@ -121,7 +121,9 @@ def _i2c_target():
     RXNE*n ADDR TXE*(m+1) AF), on the interrupt CR2 enables for each (event: ITEVTEN, TXE and RXNE
     also ITBUFEN; error: ITERREN), and the registers clear their flags as the manual says (ADDR:
     SR1 read while set, then SR2 read; RXNE: DR read; TXE: DR write; STOPF: SR1 read then CR1 write; errors:
-    written 0), with SR2's BUSY from the START to the STOP. Not modelled: BTF and the byte the shift register holds while DR is full (the
+    written 0), with SR2's BUSY from the START to the STOP (after a read, a bit after the
+    controller's NACK, served or not) and TRA from a read's address match to the STOP (RM0368
+    18.6.7). Not modelled: BTF and the byte the shift register holds while DR is full (the
     controller waits for every event instead: clock stretching without a limit), OVR/UNDR, BERR,
     ARLO, general call, dual addressing, PEC and SMBus."""
     from qiling.hw.i2c.stm32f4xx_i2c import STM32F4xxI2c
@@ -178,10 +180,14 @@ def _i2c_target():
             return (regs.OAR1 >> 1) & 0x7F if regs.CR1 & _I2C_CR1_PE else None
 
         def post(self, flags: int, transmitting: bool = False) -> None:
-            """An event of the controller: set the flags (SR2's TRA for the direction) and raise
-            the interrupt lines."""
+            """An event of the controller: set the flags and SR2's TRA for the direction (set at
+            the address phase's end; a STOP, STOPF, clears it and BUSY) and raise the interrupt
+            lines."""
             regs = self.instance
-            regs.SR2 = _I2C_SR2_BUSY | (_I2C_SR2_TRA if transmitting else 0)
+            if flags & _I2C_SR1_STOPF:
+                regs.SR2 &= ~(_I2C_SR2_BUSY | _I2C_SR2_TRA)
+            else:
+                regs.SR2 = _I2C_SR2_BUSY | (_I2C_SR2_TRA if transmitting else 0)
             regs.SR1 |= flags
             self.raise_lines()
 
@@ -201,11 +207,12 @@ def _i2c_target():
                 nvic.set_pending(self.ev_intn)
 
         def bus(self, busy: bool) -> None:
-            """SR2's BUSY: set from a START on the bus (whoever it addresses) to its STOP."""
+            """A START (busy) or STOP on the bus, whoever it addresses: SR2's BUSY is set from the
+            START to the STOP, and the STOP clears TRA (RM0368 18.6.7)."""
             if busy:
                 self.instance.SR2 |= _I2C_SR2_BUSY
             else:
-                self.instance.SR2 &= ~_I2C_SR2_BUSY
+                self.instance.SR2 &= ~(_I2C_SR2_BUSY | _I2C_SR2_TRA)
 
         def pending(self, flags: int) -> bool:
             return bool(self.instance.SR1 & flags)
@@ -379,7 +386,12 @@ class EmulatedS32:
         self._i2c_event(_I2C_SR1_ADDR, speed_hz, transmitting=True)
         for _ in range(read_len + 1):  # the last TXE comes before the controller's NACK
             self._i2c_event(_I2C_SR1_TXE, speed_hz, transmitting=True)
-        self._i2c_event(_I2C_SR1_AF, speed_hz, transmitting=True)
+        # The controller's NACK, then its STOP a bit later, whether or not the target has served
+        # the AF yet: no clock is stretched after a NACK.
+        target.post(_I2C_SR1_AF, transmitting=True)
+        self._run(self._byte_cycles(speed_hz) // 9)
+        target.bus(False)
+        self._await_served(_I2C_SR1_AF, speed_hz)
         if len(target.sent) < read_len:
             raise TimeoutError(f"the target sent {len(target.sent)} of {read_len} bytes")
         return bytes(target.sent[:read_len])
@@ -389,8 +401,13 @@ class EmulatedS32:
         return CORE_HZ * 9 // speed_hz
 
     def _i2c_event(self, flags: int, speed_hz: int, transmitting: bool = False) -> None:
+        self.ql.hw.i2c1.post(flags, transmitting)
+        self._await_served(flags, speed_hz)
+
+    def _await_served(self, flags: int, speed_hz: int) -> None:
+        """Run a byte's time at a time until the target has cleared `flags`, re-raising its
+        interrupt lines, up to I2C_STRETCH_LIMIT_S."""
         target = self.ql.hw.i2c1
-        target.post(flags, transmitting)
         byte = self._byte_cycles(speed_hz)
         for _ in range(int(I2C_STRETCH_LIMIT_S * CORE_HZ) // byte + 1):
             self._run(byte)

@@ -71,9 +71,13 @@ def join_bus(machine, core, cfg, log, target_pins=True):
     def legacy_adapter(target):
         return I2CTargetAdapter(core, target, i2c.whole_reply_writes, probe, block, not _on_stm32())
 
+    between, mem_link = probe, None
+    if _on_stm32():  # v2 publishes its state block between reads from this joint (s32/v2.py)
+        v2 = board_module("s32.v2")
+        between, mem_link = v2.read_in_progress(machine.mem32, i2c.bus), v2.S32MemLink
     try:
         return ProtocolSwitch(core, cfg.address, make_target, legacy_adapter,
-                              (machine.disable_irq, machine.enable_irq), lambda target: probe)
+                              (machine.disable_irq, machine.enable_irq), lambda target: between, mem_link)
     except (ValueError, OSError, TypeError) as exc:
         log.error("cannot join the bus as I2C target 0x%02x on I2C%d (SDA %d, SCL %d): %r"
                   % (cfg.address, i2c.bus, i2c.sda, i2c.scl, exc))

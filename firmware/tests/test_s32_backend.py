@@ -16,6 +16,8 @@ from joint.motion.hal import MAGNET_MISSING, MAGNET_OK
 from joint.links.i2c_target import I2CTargetAdapter
 from joint.console.log import Logger
 from joint.s32 import board as s32_board
+from joint.s32 import v2 as s32_v2
+from joint.spec import protocol_v2 as V
 from joint.s32 import tmc5130 as tmc
 from joint.s32.motor import S32Stepper
 from joint.s32.tle5012b import TLE5012B, crc8, crc_table
@@ -24,6 +26,7 @@ from joint.sim.clock import VirtualClock
 from joint.sim.i2c_target import FakeI2CTarget
 from pico_fakes import raises
 from s32_fakes import Board
+from v2rig import V2Rig
 
 MICROPYTHON = sys.implementation.name == "micropython"
 FS = 1 << STEPS_Q
@@ -418,3 +421,57 @@ def check_the_main_loop_allocates_nothing(j):
         j.tick(5)
         got = j.bytes_per_service(300)
         assert got is None or got == 0, "%s: %s bytes per service()" % (name, got)
+
+
+def test_v2_waits_for_a_read_from_this_joint_only():
+    sr2 = 0x40005418  # I2C1's SR2 (RM0368 18.6.7); I2C2's 0x400 above it
+    mem32 = {sr2: 0, sr2 + 0x400: 0}
+    reading = s32_v2.read_in_progress(mem32, 1)
+    assert not reading()
+    mem32[sr2] = 0x2  # BUSY alone: another joint's transaction, or this joint's write phase
+    assert not reading()
+    mem32[sr2 + 0x400] = 0x6  # a read on I2C2
+    assert not reading()
+    mem32[sr2] = 0x6  # BUSY and TRA: the host reads this joint's state block
+    assert reading()
+
+
+def _v2_on_the_s32(read_us, step_us=100):
+    """A joint serving v2 through S32MemLink, whose next swap meets a read that lasts `read_us`
+    of its clock (each look at TRA takes `step_us`)."""
+    rig = V2Rig(port="stm32", mem_link=s32_v2.S32MemLink)
+    rig.to_v2()
+    left = [read_us]
+
+    def reading():
+        rig.clock.advance(step_us)
+        left[0] -= step_us
+        return left[0] >= 0
+    rig.link.attach(rig.switch.target, reading)
+    return rig
+
+
+def test_v2_on_the_s32_waits_a_read_out_and_publishes_the_ack_in_the_same_pass():
+    rig = _v2_on_the_s32(read_us=300)
+    rig.exchange(rig.frame())
+    assert rig.link.deferred == 0 and rig.link.ack == rig.seq
+    assert V.decode_state(rig.address, rig.xfer(rig.frame(), V.STATE_SIZE))[4] == rig.seq - 1
+
+
+def test_v2_on_the_s32_defers_the_swap_when_a_read_never_ends():
+    rig = _v2_on_the_s32(read_us=1 << 20)
+    before = bytes(rig.link.mem)
+    rig.exchange(rig.frame())
+    assert rig.link.deferred == 1 and rig.link.ack != rig.seq
+    assert bytes(rig.link.mem[V.STATE:]) == before[V.STATE:]
+
+
+def test_v2_on_the_s32_allocates_nothing():
+    rig = V2Rig(port="stm32", mem_link=s32_v2.S32MemLink)
+    rig.to_v2()
+    target = rig.switch.target
+    rig.link.attach(target, s32_v2.read_in_progress({0x40005418: 0}, 1))  # I2C1's SR2: no read
+    for raw in (rig.frame(), rig.frame()):
+        target.transfer(raw, V.STATE_SIZE)
+        rig.service_heap_locked()
+    assert rig.link.ack == rig.seq and rig.link.deferred == 0

@@ -2,7 +2,7 @@
 two maps, every rejection path, whole-block reads, and an allocation-free main loop."""
 
 from joint.spec import protocol as P, protocol_v2 as V
-from joint.sim.i2c_target import FakeI2CTarget, heap_lock, heap_unlock
+from joint.sim.i2c_target import FakeI2CTarget
 from joint.motion.fixed import f32_to_q, rescale, store_q
 from joint.links.memmap_v2 import _mailbox_crc, _state_crc
 
@@ -260,11 +260,7 @@ def test_the_main_loop_pass_allocates_nothing():
     target = rig.switch.target
     for raw in frames:
         target.transfer(raw, V.STATE_SIZE)
-        heap_lock()
-        try:
-            rig.switch.service()
-        finally:
-            heap_unlock()
+        rig.service_heap_locked()
     assert rig.link.applied >= 3 and rig.link.crc_errors == 0
 
 

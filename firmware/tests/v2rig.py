@@ -7,7 +7,7 @@ from joint.core.controller import JointController
 from joint.links.i2c_target import I2CTargetAdapter
 from joint.console.log import Logger
 from joint.sim.clock import VirtualClock
-from joint.sim.i2c_target import FakeI2CTarget
+from joint.sim.i2c_target import FakeI2CTarget, heap_lock, heap_unlock
 from joint.links.memmap_v2 import ProtocolSwitch
 
 from harness import RecordingMotor
@@ -28,9 +28,10 @@ def _activity(target):
 
 
 class V2Rig:
-    """`critical`: the (disable, enable) interrupt pair given to the core and the switch."""
+    """`critical`: the (disable, enable) interrupt pair given to the core and the switch;
+    `mem_link`: the v2 link's class (None: MemLink)."""
 
-    def __init__(self, port="rp2", critical=None):
+    def __init__(self, port="rp2", critical=None, mem_link=None):
         self.clock = VirtualClock()
         self.motor = RecordingMotor()
         self.lines = []
@@ -44,7 +45,7 @@ class V2Rig:
         self.run_ms(2000)
         assert self.core.ready
         self.switch = ProtocolSwitch(self.core, self.address, self._make_target, self._legacy,
-                                     critical, _activity)
+                                     critical, _activity, mem_link)
         self.motor.calls = []
         self.seq = 0
 
@@ -61,6 +62,14 @@ class V2Rig:
         self.core.service()
         if self.switch is not None:
             self.switch.service()
+
+    def service_heap_locked(self):
+        """The switch's main-loop pass with the heap locked (MicroPython: an allocation raises)."""
+        heap_lock()
+        try:
+            self.switch.service()
+        finally:
+            heap_unlock()
 
     def run_ms(self, ms):
         for _ in range(ms):

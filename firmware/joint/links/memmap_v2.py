@@ -255,11 +255,13 @@ class ProtocolSwitch:
 
     `make_target(mem)` creates the `I2CTarget` (mem None: the legacy IRQ target; else the v2
     memory with `mem_addrsize=0`), `legacy_adapter(target)` the legacy IRQ path on it, and
-    `bus_active_for(target)` the target's activity probe (a callable, True mid-transaction).
+    `bus_active_for(target)` the target's activity probe (a callable, True mid-transaction);
+    `mem_link` the v2 link's class (None: MemLink).
     """
 
-    def __init__(self, core, address, make_target, legacy_adapter, critical, bus_active_for):
+    def __init__(self, core, address, make_target, legacy_adapter, critical, bus_active_for, mem_link=None):
         self._core = core
+        self._mem_link = mem_link or MemLink
         self._address = address
         self._make_target = make_target
         self._legacy_adapter = legacy_adapter
@@ -311,7 +313,7 @@ class ProtocolSwitch:
     def _switch(self, protocol):
         # Allocate while the old target still serves: a garbage collection between leaving the
         # bus and joining it again (tens of ms on the chip) would NAK the host meanwhile.
-        link = MemLink(self._core, self._address, self._critical) if protocol == PROTOCOL_V2 else None
+        link = self._mem_link(self._core, self._address, self._critical) if protocol == PROTOCOL_V2 else None
         _make_room()
         self._leave()
         if link is not None:
