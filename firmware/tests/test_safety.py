@@ -332,28 +332,6 @@ def test_the_load_angle_detector_forgets_its_baseline_when_the_speed_changes():
         assert det.update(rotor + load, rotor, 0) is False and det.excess == 0  # standing: nothing judged
 
 
-def test_a_joint_configured_for_the_slow_contact_detector_runs_and_says_so_on_an_image_without_it():
-    """The S32 image leaves load_angle.py out (flash): J2's configuration still boots there."""
-    from joint.config import schema as config
-    cfg = config.load("firmware/joint/config/J2.json")
-    assert cfg.valid and cfg.stall.load_limit > 0, cfg.errors
-    assert Rig(cfg=cfg).core.load is not None
-    from joint.core import controller_init
-    held = controller_init.board_module
-
-    def image_without_it(root, path):
-        if path == "detect.load_angle":
-            raise ImportError("no module named '%s.%s'" % (root, path))
-        return held(root, path)
-    controller_init.board_module = image_without_it
-    try:
-        rig = Rig(cfg=cfg)
-    finally:
-        controller_init.board_module = held
-    assert rig.core.load is None and rig.core.ready
-    assert any("no slow-contact detector in this image" in line for line in rig.lines), rig.lines
-
-
 # ---- on the shipped configurations and the simulated arm's mechanics ----
 
 # The arm's configured motion on the motor side (host default.toml): top speed rpm, acceleration

@@ -10,7 +10,7 @@ FILES = (
     "__init__.py", "app.py", "micro.py", "startup.py",
     "spec/", "core/", "config/", "s32/",
     "motion/__init__.py", "motion/fixed.py", "motion/hal.py", "motion/velocity.py",
-    "detect/__init__.py", "detect/homing.py", "detect/stall.py", "detect/tracking.py",
+    "detect/__init__.py", "detect/homing.py", "detect/load_angle.py", "detect/stall.py", "detect/tracking.py",
     "console/__init__.py", "console/log.py",
     "links/__init__.py", "links/i2c_target.py", "links/memmap_v2.py",
 )

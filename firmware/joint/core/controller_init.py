@@ -22,7 +22,6 @@ table's other bytes) is written once here and only read after.
 import struct
 from array import array
 
-from ..micro import board_module
 from ..motion.fixed import ANGLE_Q, STEPS_Q, store_q, to_q
 from ..detect.homing import HomingMonitor
 from .irq_init import init as init_irq
@@ -79,13 +78,9 @@ def init(core, hal, clock, cfg, log, critical):
     core.track = TrackingDetector(st.track_base, st.track_tau_ms, st.track_window, st.track_confirm,
                                   st.track_sample_ms, st.track_cap, st.track_slope_q8)
     core.load = None  # the slow-contact detector, on joints that configure it (imported then only)
-    if st.load_limit:
-        try:
-            # By name: the S32 image leaves it out (flash), and its drive current bounds contacts.
-            load_angle = board_module(__name__[:-len(".core.controller_init")], "detect.load_angle")
-            core.load = load_angle.LoadAngleDetector(st.load_limit, st.load_confirm, st.load_clip)
-        except ImportError:
-            log.warn("stall.load_limit: no slow-contact detector in this image")
+    if st.load_limit:  # imported only by a joint that uses it (J2): 3 KB of heap
+        from ..detect.load_angle import LoadAngleDetector
+        core.load = LoadAngleDetector(st.load_limit, st.load_confirm, st.load_clip)
     core.detector = DETECTOR_NAMES.index(st.detector) if st.detector in DETECTOR_NAMES else 0
     core.homing = HomingMonitor(cfg.homing, st)
     # Deadman: 0 = the original's (velocity only, cfg.deadman_ms); WATCHDOG sets every mode.
