@@ -30,14 +30,14 @@ class CircuitPythonTargetAdapter:
     def poll(self):
         """Serve a pending request, and after a write the read that follows it; returns True if
         there was one."""
-        request = self._target.request(timeout=-1)
+        request = self._target.request()
         if request is None:
             return False
         if not self._serve(request):
             # The host reads its reply right after the write (repeated START): wait for the
             # read here, a few address-byte times, instead of leaving SCL held until the next poll.
             for _ in range(READ_WAIT_POLLS):
-                request = self._target.request(timeout=-1)
+                request = self._target.request()
                 if request is not None:
                     self._serve(request)
                     break
