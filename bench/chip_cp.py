@@ -9,11 +9,16 @@ the joint bus, every figure in emulated time.
   1 ms phase), and `chip.cp.scl_held_us.<kHz>.<REGISTER>` each register's median;
   `chip.cp.failed_transactions` counts NAKs and stretch timeouts, `chip.cp.wrong_replies` replies
   of the registers that do not change at rest (STATIC) that differ from their first reply;
+* `chip.cp.scl_held_us.cycling.{median,p99,max}`: SCL held over CYCLES cycles of the original
+  host at 100 Hz (chip_bus: its SETRPM turns the motor), on the same joint, after those:
+  the host a moving joint serves for minutes (collections land among them), `.over_1ms` how
+  many of them held SCL over 1 ms,
+  `chip.cp.cycling_failed_transactions` its NAKs and stretch timeouts;
 * on a second boot, enabled, with the original host cycling at 100 Hz in the background
   (chip_bus.host_cycle: its SETRPM turns the motor), the loop's own figures
-  (firmware/joint/cpy/app.py LoopMeter, over METER_ITERATIONS iterations):
+  (firmware/joint/cpy/app.py LoopMeter, over 5 x METER_ITERATIONS iterations):
   `chip.cp.loop_hz`, `chip.cp.iteration_us.{median,p99,max}` (the work before the wait for the
-  next tick), `chip.cp.alloc_bytes_per_iteration`, `chip.cp.collections_per_s`,
+  next tick, of every 5th iteration), `chip.cp.alloc_bytes_per_iteration`, `chip.cp.collections_per_s`,
   `chip.cp.collect_us.{mean,max}` (the meter's own clock reads are taken off the allocation).
 """
 
@@ -36,14 +41,16 @@ from chip import fsimage  # noqa: E402
 from chip.board import EmulatedPico  # noqa: E402
 from chip.i2c import JointBusClient, joint_bus_plugin  # noqa: E402
 from chip.joint_devices import JOINT_DEVICES_PLUGIN  # noqa: E402
-from chip_bus import enable, host_cycle, legacy_transaction  # noqa: E402
+from chip_bus import (CYCLE_NAMES, CYCLE_PERIOD_US, HOST_CLOCK_PPM, enable, host_cycle,  # noqa: E402
+                      legacy_transaction)
 
 REGISTERS = ("PING", "ANGLEMOVED", "GETENCODERRPM", "GETPIDERROR", "IDENTITY", "LASTERROR")
 SAMPLES = 10  # transactions per register and bus speed
 PHASE_STEP_US = 37  # each gap 37 us longer than the one before: the requests sweep the loop's phase
 STATIC = ("PING", "IDENTITY", "LASTERROR")  # the others follow the encoder, settling after boot
-METER_ITERATIONS = 500  # one report's iterations (the emulated CircuitPython loop is slow to run)
+METER_ITERATIONS = 200  # one report's timed iterations (every 5th: LoopMeter.STRIDE)
 SPEEDS_KHZ = (100, 400)
+CYCLES = 300  # the cycling host's cycles: 900 transactions, 3 s of the joint moving
 
 
 def bench_code(meter_every: int) -> bytes:
@@ -93,6 +100,19 @@ def scl_figures(bus: JointBusClient, drain: Callable[[], object]) -> dict[str, f
     return figures
 
 
+def cycling_figures(bus: JointBusClient) -> dict[str, float]:
+    """SCL held over CYCLES cycles of the original host at 100 Hz, 400 kHz (module docstring)."""
+    cycle = [(0x11, *legacy_transaction(n)) for n in CYCLE_NAMES]
+    done = bus.schedule(cycle, repeat=CYCLES, period_us=CYCLE_PERIOD_US * (1 + HOST_CLOCK_PPM * 1e-6),
+                        timeout=900)
+    held = [t.scl_held_us for t in done]
+    return {"chip.cp.scl_held_us.cycling.median": round(statistics.median(held), 1),
+            "chip.cp.scl_held_us.cycling.p99": round(percentile(held, 0.99), 1),
+            "chip.cp.scl_held_us.cycling.max": round(max(held), 1),
+            "chip.cp.scl_held_us.cycling.over_1ms": sum(h > 1000 for h in held),
+            "chip.cp.cycling_failed_transactions": sum(not t.ack or t.timed_out for t in done)}
+
+
 @contextlib.contextmanager
 def _joint(meter_every: int) -> Iterator[tuple[EmulatedPico, Any, bytes]]:
     """J1 booted from the flashed image (its loop metered when `meter_every` > 0): the pico, its
@@ -119,7 +139,10 @@ def circuitpython_figures() -> dict[str, float]:
         bus = JointBusClient(pico)
         if not enable(bus):
             raise RuntimeError("the CircuitPython joint did not enable (SETUP)")
-        figures.update(scl_figures(bus, lambda: console.read(console.in_waiting)))
+        drain = lambda: console.read(console.in_waiting)  # noqa: E731
+        figures.update(scl_figures(bus, drain))
+        figures.update(cycling_figures(bus))
+        drain()
     for name, value in figures.items():  # partial figures survive a later failure
         print(f"{name} {value:g}", file=sys.stderr)
     with _joint(METER_ITERATIONS) as (pico, console, _):

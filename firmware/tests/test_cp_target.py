@@ -92,3 +92,18 @@ def test_a_write_is_read_by_its_count_once_it_has_ended():
             pass
         assert read.written == b"\x04", ended
         assert write.counts == ([5] if ended else [-1])
+
+
+def test_a_transaction_is_one_for_the_deadman_and_two_requests_for_the_collector():
+    """A write, repeated START, read: one transaction counted by the core, as MicroPython's IRQ
+    path counts it, and two requests served (cpy/app.py CollectionPlan counts their garbage)."""
+    rig = Rig()
+    target = FakeCPTarget()
+    adapter = CircuitPythonTargetAdapter(rig.core, target, FakeFifo(target))
+    before = rig.core.transactions
+    _transact(adapter, target, bytes([P.ANGLEMOVED]), True, adapter._fifo)
+    assert rig.core.transactions == before + 1
+    assert adapter.served == 2
+    _transact(adapter, target, bytes([P.SETRPM]) + struct.pack("<f", 1.0), False, adapter._fifo)
+    assert rig.core.transactions == before + 2  # a write alone: one too
+    assert adapter.served == 3

@@ -5,15 +5,11 @@ polled by the loop (cp_target.py).
 The loop serves the bus before and after the core's iteration and while it waits for the next
 millisecond tick (supervisor.ticks_ms: a small int, where time.monotonic_ns allocates a long int
 every call), so the host waits at most about one core iteration for a reply. The garbage
-collector is the loop's: the heap is collected once the bus has been quiet for a while (hosts poll
-in bursts) after `every` iterations, at once after twice that. Automatic collection stays on as
-the safety net (with no threshold set it runs only when an allocation finds no room; gc.disable
-made that a MemoryError, which ended the loop in a fast move once the loop allocated less at rest
-than moving).
-`every` is set at the start from the allocation of the first CALIBRATE iterations, so that two
-periods use at most half the heap free after a collection (gc.mem_free walks the whole heap, about
-as long as a core iteration: it is read at the start only). Those iterations allocate more than
-later ones (each path's first calls), which leaves room for the bus's requests (an object each).
+collector is the loop's (CollectionPlan): the heap is collected once the bus has been quiet for a
+while (hosts poll in bursts) after a period's allocation, at once after 5/4 of that. Automatic
+collection stays on as the safety net (with no threshold set it runs only when an allocation finds
+no room; gc.disable made that a MemoryError, which ended the loop in a fast move once the loop
+allocated less at rest than moving).
 CircuitPython lacks what MicroPython gives the core (native and viper code, time.ticks_*): the
 same core runs as bytecode on cpy/clock.py's small-int clock (docs/circuitpython.md has the costs).
 """
@@ -29,9 +25,21 @@ from .clock import TICKS_PERIOD, TickClock
 from .hardware import EncoderBus, StepMachine, no_bus
 
 SLOW_EVERY_MASK = 3  # the console: every 4th iteration
-QUIET_MS = 3  # a collection waits for this many millisecond ticks without a request ...
+# A collection (about 10 ms) waits for this many millisecond ticks without a request (at least
+# 1 ms: a host's transactions come back to back) ...
+QUIET_MS = 2
 CALIBRATE = 64  # iterations whose allocation sets how often the loop collects
-HEAP_SHARE = 4  # ... `every` iterations use at most this share of the free heap (forced at 2x)
+# ... once a period has allocated this many eighths of the heap free after a collection, at once
+# at 5/4 of that (the heap 78% full). Every collection delays the next transaction of a host
+# cycling at 100 Hz by a few ms: a period of 1/4 of the heap (7 collections/s, bench/chip_cp.py)
+# made that every 100th transaction (SCL held p99 5.5 ms), 5/8 (~1.6/s) makes it rarer.
+PERIOD_EIGHTHS = 5
+# What a served request allocates, in i2ctarget and links/cp_target.py: a read 16 bytes (the
+# request), a write the request, its bytes and 2-4 register reads of 32 bytes each. Measured: a
+# moving joint under a host cycling at 100 Hz (600 requests/s) allocated 139 bytes an iteration
+# at 440 Hz, about 1 idle (bench/chip_cp.py): 100 bytes a request.
+REQUEST_BYTES = 100
+SERVED_MASK = 0x3FFFFFFF  # CircuitPythonTargetAdapter.served wraps so
 TICKS_MASK = TICKS_PERIOD - 1
 PROTOCOL_V2 = 2  # protocol_v2.PROTOCOL_V2, without loading the v2 spec
 
@@ -81,6 +89,54 @@ def join_bus(core, cfg, log):
     return CircuitPythonTargetAdapter(core, target, fifo)
 
 
+class CollectionPlan:
+    """When the loop collects the heap: once a period has allocated PERIOD_EIGHTHS of the heap
+    free after a collection, at a quiet moment of the bus, at once at 5/4 of that. A period's
+    allocation is counted, not read (gc.mem_free walks the whole heap, about as long as a core
+    iteration): its iterations at the bytes each allocates, measured over the first CALIBRATE
+    (those allocate more than later ones: each path's first calls), and the bus's requests served
+    at REQUEST_BYTES each, so that a host starting to poll a joint booted idle (about 1 byte an
+    iteration) is counted as it comes instead of leaving the collection to a full heap."""
+
+    def __init__(self, gc, link, log, stride):
+        self._gc = gc
+        self._link = link  # its `served` counts the requests (None: no bus)
+        self._stride = stride  # iterations a call of due() counts (not called every iteration:
+        # a method call and its attribute loads take tens of us on the chip)
+        self._log = log
+        self._free = gc.mem_free()  # before calibrating
+        self.budget = 0  # bytes a period allocates: 0 while calibrating
+        self.per_iteration = 0
+        self._iterations = 0
+        self._served = 0
+
+    def due(self, quiet):
+        """Count `stride` iterations; True: collect now (`quiet`: the bus has been quiet long
+        enough)."""
+        self._iterations += self._stride
+        link = self._link
+        served = link.served if link is not None else 0
+        if not self.budget:
+            if self._iterations >= CALIBRATE:
+                self._calibrate()
+            return False
+        used = self._iterations * self.per_iteration + ((served - self._served) & SERVED_MASK) * REQUEST_BYTES
+        if used < self.budget or (used < self.budget + (self.budget >> 2) and not quiet):
+            return False
+        self._iterations = 0
+        self._served = served
+        return True
+
+    def _calibrate(self):
+        gc = self._gc
+        self.per_iteration = (self._free - gc.mem_free()) // self._iterations + 1
+        gc.collect()
+        self.budget = gc.mem_free() * PERIOD_EIGHTHS // 8
+        self._log.info("collecting every %d bytes allocated (%d bytes per iteration, %d per request)"
+                       % (self.budget, self.per_iteration, REQUEST_BYTES))
+        self._iterations = self.budget // self.per_iteration  # collect at the next quiet moment
+
+
 class SerialConsole:
     """The USB serial console for DebugConsole: `read(buf)` takes only bytes already there,
     `write(line)` prints a line (a str, or the trace's bytes)."""
@@ -107,10 +163,15 @@ class SerialConsole:
 
 class LoopMeter:
     """Figures of the running loop for the benchmark: iteration times (us, the work before the
-    wait), collections and their times; `report()` prints them as `name value` lines and starts
-    over. Its microsecond clock is time.monotonic_ns (the joint's clock counts whole
-    milliseconds), a long int a read: the bytes a read allocates, measured here, are taken off the
-    allocation figure, which is then the joint's own."""
+    wait) of every STRIDE-th iteration, `every` of them a report, collections and their
+    times; `report()` prints them as `name value` lines and starts over. Its microsecond clock is
+    time.monotonic_ns (the joint's clock counts whole milliseconds), a long int a read: the bytes
+    a read allocates, measured here, are taken off the allocation figure, which is then the
+    joint's own. Timing every iteration made the meter's garbage as much as the joint's (twice
+    the collections: 3.5/s, the loop 440 Hz). STRIDE is prime to the loop's 4-iteration turn,
+    so the timed iterations take each of its jobs in turn."""
+
+    STRIDE = 5
 
     def __init__(self, every, gc):
         from array import array
@@ -118,7 +179,7 @@ class LoopMeter:
 
         self.every = every
         self.times = array("H", bytes(2 * every))
-        self.count = 0
+        self.count = 0  # iterations timed, every STRIDE-th
         self.collections = 0
         self.collect_us = 0
         self.collect_max_us = 0
@@ -160,8 +221,9 @@ class LoopMeter:
         times = sorted(self.times)
         n = len(times)
         self.allocated += gc.mem_alloc() - self.base - self.reads * self.read_bytes
-        print("cp.loop.alloc_bytes_per_iteration %d" % (self.allocated // n))
-        print("cp.loop.hz %.1f" % (n / seconds))
+        iterations = n * self.STRIDE
+        print("cp.loop.alloc_bytes_per_iteration %d" % (self.allocated // iterations))
+        print("cp.loop.hz %.1f" % (iterations / seconds))
         print("cp.loop.iteration_us.median %d" % times[n // 2])
         print("cp.loop.iteration_us.p99 %d" % times[(n * 99) // 100])
         print("cp.loop.iteration_us.max %d" % times[-1])
@@ -176,7 +238,7 @@ class LoopMeter:
 
 def run(config_path=CONFIG_FILE, meter_every=0):
     """The joint: boot, join the bus, loop until Ctrl-C. `meter_every` > 0: print the loop's
-    figures (LoopMeter) every that many iterations, for bench/chip_bench.py."""
+    figures (LoopMeter) every that many timed iterations, for bench/chip_cp.py."""
     import gc
     import supervisor
 
@@ -194,15 +256,15 @@ def run(config_path=CONFIG_FILE, meter_every=0):
     serve = link.poll if link is not None else no_bus
     # The bus served mid-iteration too: after the encoder's read and after a step burst is queued.
     EncoderBus.serve = StepMachine.serve = serve
-    turn = 0
+    turn = sample = 0
     quiet_since = ticks_ms()
-    every = 0  # iterations between collections: set after CALIBRATE iterations
-    since = 0
-    free = gc.mem_free()
+    plan = CollectionPlan(gc, link, log, SLOW_EVERY_MASK + 1)  # asked every 4th iteration
     try:
         while True:
             tick = ticks_ms()
-            start = meter.now_us() if meter is not None else 0
+            if meter is not None:  # one iteration in LoopMeter.STRIDE timed, in turn with `turn`'s
+                sample = sample - 1 if sample else LoopMeter.STRIDE - 1
+                start = meter.now_us() if sample == 0 else -1
             while serve():
                 quiet_since = tick
             core.service()
@@ -216,23 +278,15 @@ def run(config_path=CONFIG_FILE, meter_every=0):
                     debug.poll()
                 except Exception as exc:  # the console must never end the control loop
                     log.error("debug console: %r" % (exc,))
-            if meter is not None:
-                meter.add(meter.now_us() - start)
-            since += 1
-            if not every:
-                if since == CALIBRATE:
-                    every, per_iteration = _period(free, gc)
-                    log.info("collecting every %d iterations (%d bytes allocated per iteration)"
-                             % (every, per_iteration))
-                    since = every  # collect at the next quiet moment
-            elif since >= every and (since >= 2 * every or ((tick - quiet_since) & TICKS_MASK) >= QUIET_MS):
-                since = 0
+            elif turn == 2 and plan.due(((tick - quiet_since) & TICKS_MASK) >= QUIET_MS):
                 if meter is None:
                     gc.collect()
                 else:
                     meter.collect(gc)
-            if meter is not None and meter.count == meter.every:
-                meter.report(gc)
+            if meter is not None and start >= 0:
+                meter.add(meter.now_us() - start)
+                if meter.count == meter.every:
+                    meter.report(gc)
             # The next iteration starts at the next millisecond tick; the bus is served meanwhile.
             while ticks_ms() == tick:
                 if serve():
@@ -240,13 +294,6 @@ def run(config_path=CONFIG_FILE, meter_every=0):
     except KeyboardInterrupt:
         mp_app.shut_down(core, link, log)
         raise
-
-
-def _period(free_before, gc):
-    """Iterations between collections, from the allocation of the first CALIBRATE iterations."""
-    per_iteration = (free_before - gc.mem_free()) // CALIBRATE + 1
-    gc.collect()
-    return max(1, gc.mem_free() // (HEAP_SHARE * per_iteration)), per_iteration
 
 
 def _refuse_protocol(core, log):

@@ -28,19 +28,25 @@ class CircuitPythonTargetAdapter:
         self.served = 0  # requests answered (wraps like the core's counters)
 
     def poll(self):
-        """Serve a pending request, and after a write the read that follows it; returns True if
-        there was one."""
-        request = self._target.request(timeout=-1)
+        """Serve a pending request, and after a write the read that follows it: one transaction
+        (MicroPython's IRQ path counts one per STOP or repeated START); returns True if there
+        was one."""
+        request = self._target.request()
         if request is None:
             return False
+        served = 1
         if not self._serve(request):
             # The host reads its reply right after the write (repeated START): wait for the
             # read here, a few address-byte times, instead of leaving SCL held until the next poll.
             for _ in range(READ_WAIT_POLLS):
-                request = self._target.request(timeout=-1)
+                request = self._target.request()
                 if request is not None:
                     self._serve(request)
+                    served = 2
                     break
+        # Once the transaction's reply is out, not between its write and read (SCL held there).
+        self._core.host_seen()
+        self.served = (self.served + served) & 0x3FFFFFFF
         return True
 
     def _serve(self, request):
@@ -64,8 +70,6 @@ class CircuitPythonTargetAdapter:
                 for i in range(n if n < MAX_FRAME else MAX_FRAME):
                     frame[i] = data[i]
                 self._core.on_frame(frame, n)
-        self._core.host_seen()
-        self.served = (self.served + 1) & 0x3FFFFFFF
         return is_read
 
     def deinit(self):
