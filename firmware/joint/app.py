@@ -12,6 +12,11 @@ from .config.settings import CONFIG_FILE
 from .links.memmap_v2 import ProtocolSwitch
 
 _SLOW_EVERY_MASK = 3  # the console and the legacy protocol switch: every 4th main-loop iteration
+# The console's first command imports its commands, whose names grow MicroPython's never-freed
+# interned-string pool by one block of about 7.7 KB in one piece. The boot-only modules leave the
+# heap in holes of at most 7 KB, so the boot keeps this much in one piece from its start, and
+# frees it at its end: free heap all the same, but one piece the pool can take.
+_CONSOLE_ROOM = 10240
 
 
 def board_module(path):
@@ -91,6 +96,7 @@ def run(config_path=CONFIG_FILE, cfg=None, target_pins=True, console=True):
     import machine
     import time
 
+    room = bytearray(_CONSOLE_ROOM) if console else None
     from . import startup  # boot only: forgotten at the end of its boot()
     core, cfg, log = startup.boot(machine, config_path, cfg)
     del startup
@@ -102,6 +108,7 @@ def run(config_path=CONFIG_FILE, cfg=None, target_pins=True, console=True):
         log.set_writer(stdio.write)
         debug = console.DebugConsole(core, stdio.read, stdio.write)
     import gc
+    room = None
     gc.collect()
     log.info("booted: %d bytes of heap free" % gc.mem_free())  # the RAM left for the console and v2
     next_us = time.ticks_us()
