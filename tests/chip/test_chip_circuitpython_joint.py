@@ -28,9 +28,23 @@ KEEP_ALIVE_US = 10_000  # the host's poll period while the joint moves (deadman 
 USTEPS_PER_DEG = USTEPS_PER_REV / 360
 
 
+def wait_at_rest(bus: JointBusClient, polls: int = 200) -> None:
+    """Poll until the driver's ramp has stood still three reads running (20 ms apart): after the
+    boot's orientation check the closed loop may still be correcting the rotor for a while."""
+    still = 0
+    for _ in range(polls):
+        t = bus.transfer(ADDRESS, bytes([P.GETDRIVERRPM]), 5, gap_us=20_000)
+        still = still + 1 if t.ack and t.data[:4] == bytes(4) else 0
+        if still == 3:
+            return
+    raise AssertionError(f"the driver still turns {polls * 20} ms after the boot")
+
+
 def register_replies(bus: JointBusClient) -> dict[tuple[int, int], bytes]:
-    """Every readable register as the original host reads it, at 100 and 400 kHz: (kHz, reg) -> reply."""
+    """Every readable register as the original host reads it at rest, at 100 and 400 kHz:
+    (kHz, reg) -> reply."""
     wait_on_bus(bus)  # the joint joins the bus after its boot message
+    wait_at_rest(bus)
     out = {}
     for khz in (100, 400):
         bus.set_khz(khz)
