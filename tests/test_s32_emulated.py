@@ -107,13 +107,12 @@ def _home_at_a_stop(bus: EmulatedS32Bus, joint: Joint) -> int:
 
 
 @pytest.fixture
-def homed(bus: EmulatedS32Bus, joint: Joint) -> Joint:
+def homed(bus: EmulatedS32Bus, joint: Joint) -> None:
     """J1 homed (by the homing test when it ran first), the stop taken away: the rotor jumps to
     the pole the field holds (it slipped one at the stop)."""
     if not joint.is_homed():
         _home_at_a_stop(bus, joint)
     bus.set_wall(None)
-    return joint
 
 
 def test_home_ends_at_the_rotor_s_stop(bus: EmulatedS32Bus, joint: Joint) -> None:
@@ -140,8 +139,8 @@ def _driver_register_changes(bus: EmulatedS32Bus, name: str, before: int, within
     raise AssertionError(f"{name} still {before} after {within_ms} ms")
 
 
-def test_movetoangle_reaches_xtarget_in_usteps_and_turns_the_rotor(bus: EmulatedS32Bus, homed: Joint) -> None:
-    joint = homed
+@pytest.mark.usefixtures("homed")
+def test_movetoangle_reaches_xtarget_in_usteps_and_turns_the_rotor(bus: EmulatedS32Bus, joint: Joint) -> None:
     joint.set_max_velocity(J1.max_velocity)  # homing left its own speed
     joint.set_max_acceleration(J1.max_acceleration)
     bus.sleep(0.005)
@@ -192,8 +191,8 @@ def test_the_deadman_stops_a_move_when_the_host_goes_quiet(bus: EmulatedS32Bus, 
     assert not joint.is_enabled()
 
 
-def test_v2_cycles_a_setpoint_in_and_a_checked_state_block_out(bus: EmulatedS32Bus, homed: Joint) -> None:
-    joint = homed
+@pytest.mark.usefixtures("homed")
+def test_v2_cycles_a_setpoint_in_and_a_checked_state_block_out(bus: EmulatedS32Bus, joint: Joint) -> None:
     joint.enable(J1.drive_current, J1.hold_current)
     start, rotor = joint.get_position(), bus.board()["rotor"]
     joint.use_v2()
