@@ -334,6 +334,23 @@ def test_unknown_until_read_first_focus_on_the_arm_and_every_known_joint_plotted
     asyncio.run(scenario())
 
 
+def test_a_configured_arm_shows_no_position_before_its_first_read(config: ArmConfig) -> None:
+    """Between configure and the cycle's first read the panel showed every joint at +0.0000 (a
+    homed j1 included, wherever it stood): the arm's placeholders, not positions."""
+    async def scenario() -> None:
+        async with panel(config) as (app, model, pilot):
+            model.arm.configure()
+            app.refresh_view()
+            await pilot.pause()
+            shown = [cell(app, name, column) for name in model.arm.joints for column in ("position", "velocity")]
+            assert set(shown) == {"—"}, shown
+            model.step(0.05)
+            app.refresh_view()
+            await pilot.pause()
+            assert all(cell(app, name, "velocity").endswith("/s") for name in model.arm.joints), "read: shown"
+    asyncio.run(scenario())
+
+
 def test_the_plot_survives_samples_older_than_its_axis(config: ArmConfig) -> None:
     """A slow cycle (a loaded machine, the web panel) spreads the kept samples over more than the
     axis: a joint whose values all lie before it used to crash plotext (IndexError in _build.py)."""

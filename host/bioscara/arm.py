@@ -149,7 +149,8 @@ class Arm:
             raise LifecycleError(f"cannot {action} while {self.lifecycle.value} (needs {allowed})")
 
     def configure(self) -> None:
-        """Connect to every joint (restoring homing offsets) and zero states and commands."""
+        """Connect to every joint (restoring homing offsets); states are NaN until the first read,
+        commands zero."""
         with self._lock:
             self._expect("configure", Lifecycle.UNCONFIGURED)
             opened = []
@@ -164,7 +165,8 @@ class Arm:
                     aj.joint.close()
                 raise
             for aj in self.joints.values():
-                aj.state, aj.command, aj.modes = JointValues(), JointValues(), set()
+                # not read yet: NaN, never a position the joint does not have (the panel showed 0 rad)
+                aj.state, aj.command, aj.modes = JointValues(math.nan, math.nan), JointValues(), set()
             self.fault = None
             self.lifecycle = Lifecycle.INACTIVE
 
