@@ -66,6 +66,36 @@ def test_a_fresh_joint_serves_legacy_and_switches_to_v2_and_back():
     assert rig.xfer(bytes([P.PING]), 2) == b"O\x0c", "legacy again, without a power cycle"
 
 
+class OrderRig(V2Rig):
+    """Records when the legacy adapter's tables are built and when a target starts answering."""
+
+    def __init__(self):
+        self.events = []
+        V2Rig.__init__(self)
+
+    def _make_target(self, mem):
+        self.events.append("target")
+        return V2Rig._make_target(self, mem)
+
+    def _legacy(self):
+        self.events.append("tables")
+        return V2Rig._legacy(self)
+
+
+def test_a_legacy_target_is_created_only_once_its_tables_are_built():
+    """A target acknowledges its address from its creation on, and a read gets zeros until the
+    handler is set: the adapter's tables (their allocation can start a collection, tens of ms on
+    the chip) come first. The emulated chip answered PING 00 00 right after its first ACK."""
+    rig = OrderRig()
+    assert rig.events == ["tables", "target"]
+    rig.to_v2()
+    rig.command("PROTOCOL", 1)
+    rig.tick()
+    assert rig.switch.protocol == V.PROTOCOL_LEGACY
+    assert rig.events == ["tables", "target", "target", "tables", "target"]
+    assert rig.xfer(bytes([P.PING]), 2) == b"O\x0c"
+
+
 def test_host_silence_returns_a_v2_joint_to_legacy():
     rig = V2Rig()
     rig.to_v2()

@@ -54,8 +54,8 @@ class V2Rig:
             return FakeI2CTarget(self.address, self.port)
         return FakeI2CTarget(self.address, self.port, mem=mem, mem_addrsize=V.MEM_ADDRSIZE)
 
-    def _legacy(self, target):
-        return I2CTargetAdapter(self.core, target, True)
+    def _legacy(self):
+        return I2CTargetAdapter(self.core, None, True)
 
     def tick(self):
         self.clock.advance(1000)

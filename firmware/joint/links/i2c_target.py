@@ -254,7 +254,6 @@ class I2CTargetAdapter:
     """
 
     def __init__(self, core, target, whole_reply_writes=True, bus_active=None, rp2040_i2c=0, end_write_drains=True):
-        self._target = target
         frame = bytearray(MAX_FRAME + _CHUNK)
         view = memoryview(frame)
         wires = core._wires + [core._flags_wire]
@@ -274,11 +273,22 @@ class I2CTargetAdapter:
         for sel, wire in enumerate(wires):
             st[_S_RSIZE + sel] = len(wire) if wire else 0
         self._rp2040_i2c = rp2040_i2c
+        self._core = core
+        self._k = k
+        self._target = None
+        if target is not None:
+            self.attach(target)
+
+    def attach(self, target):
+        """Serve `target`. A target acknowledges its address from its creation on, and until its
+        handler is set a read gets zeros: ProtocolSwitch creates it only once the tables above
+        are built (their allocation can start a collection, tens of ms on the chip)."""
+        self._target = target
         # The irq object first: a host already polling at boot fires the handler the moment it is set.
-        self._irq = _handler(st, core, k, target.irq().flags)
+        self._irq = _handler(self._state, self._core, self._k, target.irq().flags)
         target.irq(self._irq, trigger=TRIGGER, hard=True)
-        if rp2040_i2c:
-            _store32(rp2040_i2c + _ATOMIC_CLEAR + _IC_INTR_MASK, _M_RX_DONE)
+        if self._rp2040_i2c:
+            _store32(self._rp2040_i2c + _ATOMIC_CLEAR + _IC_INTR_MASK, _M_RX_DONE)
 
     def deinit(self):
         self._target.irq(None, trigger=0, hard=True)

@@ -254,7 +254,8 @@ class ProtocolSwitch:
     critical sections (`set_critical(None)`): nothing in an IRQ shares its state then.
 
     `make_target(mem)` creates the `I2CTarget` (mem None: the legacy IRQ target; else the v2
-    memory with `mem_addrsize=0`), `legacy_adapter(target)` the legacy IRQ path on it, and
+    memory with `mem_addrsize=0`), `legacy_adapter()` the legacy IRQ path (I2CTargetAdapter)
+    before its target exists, attached to it once created, and
     `bus_active_for(target)` the target's activity probe (a callable, True mid-transaction);
     `mem_link` the v2 link's class (None: MemLink).
     """
@@ -272,9 +273,16 @@ class ProtocolSwitch:
         self._request_writes = -1
         self.switches = 0
         self.link = None
-        self.target = make_target(None)
-        self._bus_active = bus_active_for(self.target)
-        self.adapter = legacy_adapter(self.target)
+        adapter = legacy_adapter()
+        _make_room()
+        self._join_legacy(adapter)
+
+    def _join_legacy(self, adapter):
+        # Nothing allocates between the target's creation and its handler but the handler.
+        self.target = self._make_target(None)
+        self._bus_active = self._bus_active_for(self.target)
+        adapter.attach(self.target)
+        self.adapter = adapter
 
     def service(self):
         """Main loop, after the core's iteration."""
@@ -314,6 +322,7 @@ class ProtocolSwitch:
         # Allocate while the old target still serves: a garbage collection between leaving the
         # bus and joining it again (tens of ms on the chip) would NAK the host meanwhile.
         link = self._mem_link(self._core, self._address, self._critical) if protocol == PROTOCOL_V2 else None
+        adapter = self._legacy_adapter() if link is None else None
         _make_room()
         self._leave()
         if link is not None:
@@ -326,9 +335,7 @@ class ProtocolSwitch:
             self.link = link
         else:
             self._core.set_critical(self._critical)
-            self.target = self._make_target(None)
-            self._bus_active = self._bus_active_for(self.target)
-            self.adapter = self._legacy_adapter(self.target)
+            self._join_legacy(adapter)
         self.protocol = protocol
         self._request = 0
         self.switches += 1

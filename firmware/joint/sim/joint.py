@@ -79,8 +79,8 @@ class SimJoint:
             return FakeI2CTarget(self.cfg.address, self.port)
         return FakeI2CTarget(self.cfg.address, self.port, mem=mem, mem_addrsize=V.MEM_ADDRSIZE)
 
-    def _legacy_adapter(self, target):
-        return I2CTargetAdapter(self.core, target, self.cfg.i2c.whole_reply_writes)
+    def _legacy_adapter(self):
+        return I2CTargetAdapter(self.core, None, self.cfg.i2c.whole_reply_writes)
 
     def tick(self):
         self.core.service()
