@@ -8,16 +8,21 @@ shows, within a timeout.
 
 from __future__ import annotations
 
+import asyncio
+import errno
 import os
 import re
 import signal
+import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from textual.drivers._writer_thread import WriterThread
 
 from bioscara import interruption
+from bioscara.panel.terminal import HangupSafeOutput, PanelDriver
 from sim_session import quick_config, state_dir  # noqa: F401 (a fixture)
 from tests.user_programs import TIMEOUT_S, Terminal, bioscara, position, stays
 
@@ -124,3 +129,53 @@ def test_a_signal_or_a_closed_terminal_stops_the_joint_the_panel_moves(state_dir
     where = position(Path(config))
     assert start + 0.5 < where < target - 0.1, f"j1 stopped mid-way, not at {where}"
     stays(Path(config), where)
+
+
+class HungUpTerminal:
+    """A terminal whose window closed: every write and flush fails with EIO."""
+
+    def write(self, text: str) -> int:
+        raise OSError(errno.EIO, "Input/output error")
+
+    flush = write
+
+    def fileno(self) -> int:
+        return 2
+
+    def isatty(self) -> bool:
+        return True
+
+
+def test_the_panels_output_outlives_its_terminal() -> None:
+    """Textual's writer thread ended on the first refused write; every write after the queue's 30
+    then waited for good, and the panel hung in its shutdown instead of stopping its joint."""
+    writer = WriterThread(HangupSafeOutput(HungUpTerminal()))  # type: ignore[arg-type]
+    writer.start()
+    stopped = threading.Thread(target=lambda: [writer.write("frame") for _ in range(100)] and writer.stop(),
+                               daemon=True)
+    stopped.start()
+    stopped.join(TIMEOUT_S)
+    assert not stopped.is_alive() and not writer.is_alive(), "the writes after the terminal went away blocked"
+
+
+def test_sigcont_resumes_the_panel_only_after_a_suspend(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The kernel sends SIGCONT with SIGHUP when the terminal closes: Textual started its screen
+    again then, a second writer and input thread on the dead terminal."""
+    async def made() -> PanelDriver:
+        return PanelDriver(object())  # type: ignore[arg-type]  (a driver is made in the app's loop)
+
+    handlers = {signum: signal.getsignal(signum) for signum in (signal.SIGTSTP, signal.SIGCONT)}
+    try:
+        driver = asyncio.run(made())
+        resumed: list[bool] = []
+        monkeypatch.setattr(driver, "start_application_mode", lambda: resumed.append(True))
+        monkeypatch.setattr(driver, "suspend_application_mode", lambda: None)
+        monkeypatch.setattr(os, "kill", lambda pid, signum: None)  # SIGSTOP: the process stays
+        signal.getsignal(signal.SIGCONT)(signal.SIGCONT, None)
+        assert resumed == [], "resumed though never suspended"
+        signal.getsignal(signal.SIGTSTP)(signal.SIGTSTP, None)
+        signal.getsignal(signal.SIGCONT)(signal.SIGCONT, None)
+        assert resumed == [True]
+    finally:
+        for signum, handler in handlers.items():
+            signal.signal(signum, handler)

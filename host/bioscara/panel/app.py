@@ -18,11 +18,14 @@ from textual.app import App, ComposeResult
 from textual.binding import Binding
 from textual.containers import Horizontal, Vertical
 from textual.css.query import NoMatches
+from textual.driver import Driver
+from textual.drivers.linux_driver import LinuxDriver
 from textual.widgets import Button, DataTable, Footer, Header, Input, Label, Log, Select, Static
 from textual_plotext import PlotextPlot
 
 from ..arm import Mode
 from .model import SIGNALS, JointView, PanelModel
+from .terminal import PanelDriver
 
 REFRESH_S = 0.1
 SLOW_REFRESH_S = 0.5
@@ -173,6 +176,10 @@ class PanelApp(App[None]):
                 yield Select(_plot_groups(model), value=_plot_groups(model)[0][1], allow_blank=False, id="plotted")
                 yield Log(id="log", highlight=False)
         yield Footer()
+
+    def get_driver_class(self) -> type[Driver]:
+        driver = super().get_driver_class()
+        return PanelDriver if driver is LinuxDriver else driver  # a terminal on Linux (terminal.py)
 
     def on_mount(self) -> None:
         self.sub_title = self.model.arm.bus.describe()
