@@ -2,7 +2,7 @@
 
 `JointController` composes the core's contexts, one module each:
 
-* `irq.py` (IRQ path: `on_frame`, `reply_into`, `host_seen`): never allocates; validates frames,
+* `irq.py` (IRQ path: `on_frame`, `reply_wire`, `host_seen`): never allocates; validates frames,
   updates flags, queues commands, serves replies packed in advance;
 * `loop.py` (main loop: `service`): drains the queue into the motor HAL through the register
   handlers of `handlers.py`, steps the blocking tasks of `tasks.py` (boot, HOME,

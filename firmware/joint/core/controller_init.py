@@ -5,7 +5,7 @@ Who owns which state. Every attribute below is created here (`init`, `irq_init.i
 each is written only by the context it is listed under (tests/test_firmware_state_owners.py reads
 the code of each context and checks it against these tables):
 
-    IRQ          irq.py: on_frame, reply_into, host_seen (never allocates)
+    IRQ          irq.py: on_frame, reply_wire, host_seen (never allocates)
     MAIN_LOOP    loop.py, handlers.py: draining the queue, applying commands, the reply caches
     SUPERVISION  supervise.py: stall detection, the deadman
     TASKS        tasks.py: the blocking tasks (boot, HOME, CHECKORIENTATION)

@@ -265,13 +265,9 @@ class IrqPath:
         cache = self._cache[_LASTERROR]
         return cache[2] | (cache[3] << 8)
 
-    @micropython.native
-    def reply_into(self, out):
-        """Write the reply (payload + flags) right-aligned at the end of `out`; return its length."""
+    def reply_wire(self):
+        """The reply (payload + flags) in its wire buffer, the flags byte set now: for a link that
+        sends it before anything else runs (CircuitPython's polled target), no copy."""
         wire = self._reply_wire
-        n = len(wire)
-        wire[n - 1] = self.flags | self._reply_err
-        start = len(out) - n
-        for i in range(n):
-            out[start + i] = wire[i]
-        return n
+        wire[len(wire) - 1] = self.flags | self._reply_err
+        return wire

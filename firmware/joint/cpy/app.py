@@ -254,7 +254,8 @@ def run(config_path=CONFIG_FILE, meter_every=0):
         meter.base = gc.mem_alloc()
     log.info("CircuitPython joint: %d bytes of heap free" % gc.mem_free())
     serve = link.poll if link is not None else no_bus
-    # The bus served mid-iteration too: after the encoder's read and after a step burst is queued.
+    # The bus served mid-iteration too: as the motor's update starts (its look at the step
+    # FIFO), after the encoder's read and after a step burst is queued.
     EncoderBus.serve = StepMachine.serve = serve
     turn = sample = 0
     quiet_since = ticks_ms()

@@ -84,7 +84,9 @@ class StepMachine:
     rp2pio's write() returns only once the FIFO is empty again, which is when the PIO pulls the
     word, at the end of the burst running (about 540 us an iteration while moving, measured);
     the stepper never has more words in flight than the FIFO holds. Then it calls `serve`, as
-    EncoderBus does: late in a moving iteration, where the next poll was about 1.8 ms away."""
+    EncoderBus does: late in a moving iteration, where the next poll was about 1.8 ms away; and
+    at each look at the RX FIFO, which the motor's update starts with (about 0.2 ms into the
+    core's iteration, 0.45 ms before the encoder's read: the longest wait for a reply was there)."""
 
     serve = staticmethod(no_bus)
 
@@ -104,6 +106,7 @@ class StepMachine:
         return self._word[0]
 
     def rx_fifo(self):
+        self.serve()
         return self._sm.in_waiting
 
 
