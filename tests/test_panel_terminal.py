@@ -151,11 +151,16 @@ def test_the_panels_output_outlives_its_terminal() -> None:
     then waited for good, and the panel hung in its shutdown instead of stopping its joint."""
     writer = WriterThread(HangupSafeOutput(HungUpTerminal()))  # type: ignore[arg-type]
     writer.start()
-    stopped = threading.Thread(target=lambda: [writer.write("frame") for _ in range(100)] and writer.stop(),
-                               daemon=True)
-    stopped.start()
-    stopped.join(TIMEOUT_S)
-    assert not stopped.is_alive() and not writer.is_alive(), "the writes after the terminal went away blocked"
+
+    def frames_then_shutdown() -> None:
+        for _ in range(100):
+            writer.write("frame")
+        writer.stop()
+
+    app = threading.Thread(target=frames_then_shutdown, daemon=True)
+    app.start()
+    app.join(TIMEOUT_S)
+    assert not app.is_alive() and not writer.is_alive(), "the writes after the terminal went away blocked"
 
 
 def test_sigcont_resumes_the_panel_only_after_a_suspend(monkeypatch: pytest.MonkeyPatch) -> None:

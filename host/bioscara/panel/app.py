@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import math
+import sys
 import textwrap
 from collections.abc import Callable
 from signal import SIG_IGN, SIGINT, Signals, getsignal
@@ -19,13 +20,11 @@ from textual.binding import Binding
 from textual.containers import Horizontal, Vertical
 from textual.css.query import NoMatches
 from textual.driver import Driver
-from textual.drivers.linux_driver import LinuxDriver
 from textual.widgets import Button, DataTable, Footer, Header, Input, Label, Log, Select, Static
 from textual_plotext import PlotextPlot
 
 from ..arm import Mode
 from .model import SIGNALS, JointView, PanelModel
-from .terminal import PanelDriver
 
 REFRESH_S = 0.1
 SLOW_REFRESH_S = 0.5
@@ -179,7 +178,12 @@ class PanelApp(App[None]):
 
     def get_driver_class(self) -> type[Driver]:
         driver = super().get_driver_class()
-        return PanelDriver if driver is LinuxDriver else driver  # a terminal on Linux (terminal.py)
+        if sys.platform == "win32":  # Textual's Windows driver (terminal.py needs termios)
+            return driver
+        from textual.drivers.linux_driver import LinuxDriver
+
+        from .terminal import PanelDriver
+        return PanelDriver if driver is LinuxDriver else driver  # not textual-serve's, for --web
 
     def on_mount(self) -> None:
         self.sub_title = self.model.arm.bus.describe()
