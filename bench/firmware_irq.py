@@ -61,7 +61,8 @@ def bench_transaction(label, frame, read_len, n=2000):
         clock.advance(1000)
         core.service()
     stub = Stub()
-    adapter = I2CTargetAdapter(core, stub)
+    adapter = I2CTargetAdapter(core)
+    adapter.attach(stub)
     handler = adapter._irq
 
     def nothing(target):

@@ -74,7 +74,7 @@ def join_bus(machine, core, cfg, log, target_pins=True):
         block = board_module("pico").i2c_registers(i2c.bus)
 
     def legacy_adapter():
-        return I2CTargetAdapter(core, None, i2c.whole_reply_writes, probe, block, not _on_stm32())
+        return I2CTargetAdapter(core, i2c.whole_reply_writes, probe, block, not _on_stm32())
 
     between, mem_link = probe, None
     if _on_stm32():  # v2 publishes its state block between reads from this joint (s32/v2.py)

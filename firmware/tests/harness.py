@@ -127,7 +127,8 @@ class Rig:
         self.core = JointController(self.motor, self.clock, self.cfg,
                                     Logger("J1", write=self.lines.append))
         self.target = FakeI2CTarget(self.cfg.address or 0x11, port)
-        self.adapter = I2CTargetAdapter(self.core, self.target, whole_reply_writes)
+        self.adapter = I2CTargetAdapter(self.core, whole_reply_writes)
+        self.adapter.attach(self.target)
         if boot:
             self.run_ms(2000)
             assert self.core.ready

@@ -100,7 +100,8 @@ class PicoJoint:
         self.core = JointController(self.motor, self.clock, self.cfg,
                                     Logger(joint, write=self.lines.append))
         self.target = FakeI2CTarget(self.cfg.address)
-        self.adapter = I2CTargetAdapter(self.core, self.target)
+        self.adapter = I2CTargetAdapter(self.core)
+        self.adapter.attach(self.target)
         self.tick(30000, until_ready=True)
         assert self.core.ready and not self.core.disabled, self.lines
 

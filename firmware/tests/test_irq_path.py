@@ -377,7 +377,8 @@ def _rp2_rig():
     rig = Rig()
     target = Rp2Events()
     rig.adapter.deinit()
-    adapter = I2CTargetAdapter(rig.core, target, True, lambda: target.active)
+    adapter = I2CTargetAdapter(rig.core, True, lambda: target.active)
+    adapter.attach(target)
     return rig, target, adapter
 
 
@@ -444,7 +445,7 @@ def _rp2_block_rig(make_target):
     try:
         rig.adapter.deinit()
         target = make_target(registers)
-        I2CTargetAdapter(rig.core, target, True, lambda: target.active, _I2C0)
+        I2CTargetAdapter(rig.core, True, lambda: target.active, _I2C0).attach(target)
     except BaseException:
         restore()
         raise

@@ -314,7 +314,8 @@ class S32Joint:
         self.lines = []
         self.core = JointController(self.motor, self.clock, self.cfg, Logger(joint, write=self.lines.append))
         self.target = FakeI2CTarget(self.cfg.address)
-        self.adapter = I2CTargetAdapter(self.core, self.target)
+        self.adapter = I2CTargetAdapter(self.core)
+        self.adapter.attach(self.target)
         self.tick(30000, until=lambda: self.core.ready)
         assert self.core.ready and not self.core.disabled, self.lines
 

@@ -55,7 +55,7 @@ class V2Rig:
         return FakeI2CTarget(self.address, self.port, mem=mem, mem_addrsize=V.MEM_ADDRSIZE)
 
     def _legacy(self):
-        return I2CTargetAdapter(self.core, None, True)
+        return I2CTargetAdapter(self.core, True)
 
     def tick(self):
         self.clock.advance(1000)

@@ -214,7 +214,8 @@ def _handler(s, core, k, flags_of):
 
 
 class I2CTargetAdapter:
-    """Connects a `machine.I2CTarget` (or the simulator's fake) to a JointController.
+    """Connects a `machine.I2CTarget` (or the simulator's fake) to a JointController: built first
+    (the handler's tables), then `attach(target)`.
 
     `whole_reply_writes=False` hands `write()` one byte at a time, for ports whose `write()`
     reports 1 even when it queued more (alif).
@@ -253,7 +254,7 @@ class I2CTargetAdapter:
     after a write-only one is not counted).
     """
 
-    def __init__(self, core, target, whole_reply_writes=True, bus_active=None, rp2040_i2c=0, end_write_drains=True):
+    def __init__(self, core, whole_reply_writes=True, bus_active=None, rp2040_i2c=0, end_write_drains=True):
         frame = bytearray(MAX_FRAME + _CHUNK)
         view = memoryview(frame)
         wires = core._wires + [core._flags_wire]
@@ -276,8 +277,6 @@ class I2CTargetAdapter:
         self._core = core
         self._k = k
         self._target = None
-        if target is not None:
-            self.attach(target)
 
     def attach(self, target):
         """Serve `target`. A target acknowledges its address from its creation on, and until its

@@ -280,9 +280,9 @@ class ProtocolSwitch:
     def _join_legacy(self, adapter):
         # Nothing allocates between the target's creation and its handler but the handler.
         self.target = self._make_target(None)
-        self._bus_active = self._bus_active_for(self.target)
         adapter.attach(self.target)
         self.adapter = adapter
+        self._bus_active = self._bus_active_for(self.target)
 
     def service(self):
         """Main loop, after the core's iteration."""

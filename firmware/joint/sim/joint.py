@@ -80,7 +80,7 @@ class SimJoint:
         return FakeI2CTarget(self.cfg.address, self.port, mem=mem, mem_addrsize=V.MEM_ADDRSIZE)
 
     def _legacy_adapter(self):
-        return I2CTargetAdapter(self.core, None, self.cfg.i2c.whole_reply_writes)
+        return I2CTargetAdapter(self.core, self.cfg.i2c.whole_reply_writes)
 
     def tick(self):
         self.core.service()
